@@ -1,0 +1,45 @@
+"""The ``kaleidospec`` command line.
+
+Commands are defined in :mod:`kaleidospec.commands`; this module only assembles them and turns
+user errors (:class:`recon.errors.InputError`) into one line on stderr and exit status 2.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import typer
+
+from kaleidospec.commands import reconstruct
+
+app = typer.Typer(
+    name="kaleidospec",
+    help="Simulate and reconstruct a kaleidoscopic multisampling CASSI (compressive video spectroscopy).",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
+
+
+
+@app.callback()
+def _root() -> None:
+    """Simulate and reconstruct a kaleidoscopic multisampling CASSI."""
+
+
+app.command("reconstruct")(reconstruct.reconstruct)
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Entry point of the console script."""
+    from recon.errors import InputError
+
+    try:
+        app(args=argv, prog_name="kaleidospec")
+    except InputError as err:
+        print(f"kaleidospec: error: {err}", file=sys.stderr)
+        sys.exit(2)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

@@ -1,0 +1,154 @@
+r"""The linear-operator contract every forward model in :mod:`recon` follows.
+
+An operator :math:`A` maps arrays of shape ``ishape`` to arrays of shape ``oshape``;
+``forward`` computes :math:`Ax`, ``adjoint`` computes :math:`A^\top y` exactly (not an
+approximation), so that :math:`\langle Ax, y\rangle = \langle x, A^\top y\rangle` up to rounding.
+:func:`dot_test` checks that identity and every operator's test suite calls it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class LinearOperator:
+    """Base class: a real linear map between two array shapes.
+
+    Subclasses set ``ishape``, ``oshape`` and implement ``_forward`` and ``_adjoint``; both work
+    in float32 unless the input is float64, in which case float64 is kept (for precision checks).
+
+    Attributes
+    ----------
+    ishape, oshape : tuple of int
+        Shapes of the domain and of the range.
+    """
+
+    ishape: tuple[int, ...]
+    oshape: tuple[int, ...]
+
+    def __init__(self, ishape, oshape):
+        self.ishape = tuple(int(s) for s in ishape)
+        self.oshape = tuple(int(s) for s in oshape)
+
+    # -- public API -------------------------------------------------------------------------
+    def forward(self, x: np.ndarray) -> np.ndarray:
+        """Return :math:`Ax` for ``x`` of shape ``ishape``."""
+        x = np.asarray(x)
+        if x.shape != self.ishape:
+            raise ValueError(f"{type(self).__name__}: input shape {x.shape} != {self.ishape}")
+        return self._forward(x)
+
+    def adjoint(self, y: np.ndarray) -> np.ndarray:
+        """Return :math:`A^\\top y` for ``y`` of shape ``oshape``."""
+        y = np.asarray(y)
+        if y.shape != self.oshape:
+            raise ValueError(f"{type(self).__name__}: input shape {y.shape} != {self.oshape}")
+        return self._adjoint(y)
+
+    __call__ = forward
+
+    @property
+    def H(self) -> "LinearOperator":
+        """The adjoint as an operator."""
+        return _Adjoint(self)
+
+    def __matmul__(self, other: "LinearOperator") -> "LinearOperator":
+        return _Compose(self, other)
+
+    def row_norms_sq(self) -> np.ndarray:
+        r"""Diagonal of :math:`AA^\top` (squared norm of every row), shape ``oshape``.
+
+        Exact for any operator through :math:`\sum_j A_{ij}^2`; subclasses override it with a
+        closed form.  The default here probes with unit vectors and is only for small tests.
+        """
+        n = int(np.prod(self.oshape))
+        out = np.empty(n, dtype=np.float64)
+        e = np.zeros(n, dtype=np.float64)
+        for i in range(n):
+            e[i] = 1.0
+            out[i] = np.sum(self.adjoint(e.reshape(self.oshape)).astype(np.float64) ** 2)
+            e[i] = 0.0
+        return out.reshape(self.oshape)
+
+    def __repr__(self) -> str:
+        return f"<{type(self).__name__} {self.ishape} -> {self.oshape}>"
+
+    # -- to implement ---------------------------------------------------------------------------
+    def _forward(self, x: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _adjoint(self, y: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+
+class _Adjoint(LinearOperator):
+    def __init__(self, op: LinearOperator):
+        super().__init__(op.oshape, op.ishape)
+        self.op = op
+
+    def _forward(self, x):
+        return self.op.adjoint(x)
+
+    def _adjoint(self, y):
+        return self.op.forward(y)
+
+
+class _Compose(LinearOperator):
+    """``(A @ B) x = A(Bx)``."""
+
+    def __init__(self, a: LinearOperator, b: LinearOperator):
+        if a.ishape != b.oshape:
+            raise ValueError(f"cannot compose {a!r} @ {b!r}")
+        super().__init__(b.ishape, a.oshape)
+        self.a, self.b = a, b
+
+    def _forward(self, x):
+        return self.a.forward(self.b.forward(x))
+
+    def _adjoint(self, y):
+        return self.b.adjoint(self.a.adjoint(y))
+
+
+class MatrixOperator(LinearOperator):
+    """A dense matrix as an operator on flattened arrays (a reference for tests)."""
+
+    def __init__(self, matrix: np.ndarray, ishape=None, oshape=None):
+        m = np.asarray(matrix)
+        super().__init__(ishape or (m.shape[1],), oshape or (m.shape[0],))
+        if m.shape != (int(np.prod(self.oshape)), int(np.prod(self.ishape))):
+            raise ValueError("matrix shape does not match ishape/oshape")
+        self.matrix = m
+
+    def _forward(self, x):
+        return (self.matrix @ x.reshape(-1)).reshape(self.oshape)
+
+    def _adjoint(self, y):
+        return (self.matrix.T @ y.reshape(-1)).reshape(self.ishape)
+
+    def row_norms_sq(self):
+        return np.sum(self.matrix.astype(np.float64) ** 2, axis=1).reshape(self.oshape)
+
+
+def dot_test(op: LinearOperator, rng: np.random.Generator | None = None,
+             dtype=np.float64) -> float:
+    r"""Relative mismatch of :math:`\langle Ax, y\rangle` and :math:`\langle x, A^\top y\rangle`.
+
+    Parameters
+    ----------
+    op : LinearOperator
+    rng : numpy.random.Generator, optional
+    dtype : numpy dtype
+        Precision of the random probes (float64 by default, so that the test measures the
+        adjoint and not float32 rounding).
+
+    Returns
+    -------
+    float
+        :math:`|\langle Ax,y\rangle-\langle x,A^\top y\rangle| / \max(|\langle Ax,y\rangle|, 10^{-30})`.
+    """
+    rng = rng or np.random.default_rng(0)
+    x = rng.standard_normal(op.ishape).astype(dtype)
+    y = rng.standard_normal(op.oshape).astype(dtype)
+    lhs = float(np.vdot(op.forward(x).astype(np.float64), y))
+    rhs = float(np.vdot(x, op.adjoint(y).astype(np.float64)))
+    return abs(lhs - rhs) / max(abs(lhs), abs(rhs), 1e-30)
