@@ -10,7 +10,8 @@ import sys
 
 import typer
 
-from kaleidospec.commands import reconstruct
+from kaleidospec.commands import demo, reconstruct
+from kaleidospec.commands import design
 
 app = typer.Typer(
     name="kaleidospec",
@@ -28,6 +29,8 @@ def _root() -> None:
 
 
 app.command("reconstruct")(reconstruct.reconstruct)
+app.add_typer(design.app, name="design")
+app.command("demo")(demo.demo)
 
 
 def main(argv: list[str] | None = None) -> None:

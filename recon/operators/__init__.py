@@ -1,5 +1,18 @@
-"""Linear forward models of (multi-view) CASSI, each with an exact, dot-tested adjoint."""
+"""Linear forward models of (multi-view) CASSI, each with an exact, dot-tested adjoint.
+
+Working layout is band-major: cubes are (L, H, W), measurements (K, Hv, Wm), float32.
+"""
 
 from recon.operators.base import LinearOperator, MatrixOperator, dot_test
+from recon.operators.calibrated import CalibratedCassi
+from recon.operators.cassi import CassiOperator, View, kaleidoscope_cassi, standard_cassi
+from recon.operators.dispersion import Dispersion
+from recon.operators.mask import MaskModulation
+from recon.operators.warp import Flip, HomographyWarp, Identity, Translate, Warp, WarpOperator
 
-__all__ = ["LinearOperator", "MatrixOperator", "dot_test"]
+__all__ = [
+    "LinearOperator", "MatrixOperator", "dot_test",
+    "View", "CassiOperator", "standard_cassi", "kaleidoscope_cassi", "CalibratedCassi",
+    "Dispersion", "MaskModulation",
+    "Warp", "Identity", "Flip", "Translate", "HomographyWarp", "WarpOperator",
+]

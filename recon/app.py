@@ -1,0 +1,257 @@
+r"""High-level reconstruction: measurement + operator in, cube (H, W, L) out.
+
+This is the one place where the layouts meet: callers (the command line, the simulator's
+experiments, notebooks) speak (H, W, L) cubes; operators and solvers work band-major on
+(L, H, W) so every band is a contiguous image.  :func:`reconstruct` transposes once on the way in
+(``x0``, ``truth``) and once on the way out, validates shapes, runs a solver from
+:mod:`recon.solvers` and reports timing and, given a reference, quality metrics.
+
+The problem solved is the paper's (Eq. 6–7)
+
+.. math::
+
+    \hat f = \arg\min_f \tfrac12 \lVert g - H f\rVert_2^2 + \tau\, \mathrm{TV}(f)
+
+with TV spatial and summed over bands.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from recon.errors import InputError
+
+__all__ = ["reconstruct", "reconstruct_standard", "standard_n_bands", "default_tau", "solver_names"]
+
+
+def solver_names() -> tuple[str, ...]:
+    """The solver names :func:`recon.solvers.solve` knows."""
+    from recon.solvers import SOLVERS
+
+    return tuple(SOLVERS)
+
+
+def default_tau(solver: str) -> float:
+    """The default TV weight of a solver (its function's ``tau`` default)."""
+    import inspect
+
+    from recon.solvers import SOLVERS
+
+    if solver not in SOLVERS:
+        raise InputError(f"unknown solver {solver!r}; choose one of {', '.join(SOLVERS)}")
+    p = inspect.signature(SOLVERS[solver]).parameters.get("tau")
+    if p is None or p.default is inspect.Parameter.empty:
+        raise InputError(f"solver {solver!r} has no default tau; pass one")
+    return float(p.default)
+
+
+def _as_measurement(measurement, oshape) -> np.ndarray:
+    g = np.asarray(measurement)
+    if g.dtype == bool or not (np.issubdtype(g.dtype, np.floating) or np.issubdtype(g.dtype, np.integer)):
+        raise InputError(f"measurement has dtype {g.dtype}, expected real numbers")
+    if g.shape != tuple(oshape):
+        if oshape[0] == 1 and g.shape == tuple(oshape[1:]):
+            g = g[None]  # a 2-D single-view frame (Hv, Wm) for K = 1
+        else:
+            raise InputError(
+                f"measurement shape {g.shape} does not match the operator's {tuple(oshape)}"
+                + (f" (or {tuple(oshape[1:])})" if oshape[0] == 1 else "")
+            )
+    dtype = np.float64 if g.dtype == np.float64 else np.float32
+    g = np.ascontiguousarray(g, dtype=dtype)
+    if not np.all(np.isfinite(g)):
+        raise InputError("measurement contains NaN or Inf")
+    return g
+
+
+def _to_band_major(cube, ishape, what: str, dtype) -> np.ndarray:
+    c = np.asarray(cube)
+    L, H, W = ishape
+    if c.shape != (H, W, L):
+        raise InputError(f"{what} shape {c.shape} does not match the operator's cube (H, W, L) = {(H, W, L)}")
+    if c.dtype == bool or not (np.issubdtype(c.dtype, np.floating) or np.issubdtype(c.dtype, np.integer)):
+        raise InputError(f"{what} has dtype {c.dtype}, expected real numbers")
+    c = np.ascontiguousarray(np.moveaxis(c, 2, 0), dtype=dtype)
+    if not np.all(np.isfinite(c)):
+        raise InputError(f"{what} contains NaN or Inf")
+    return c
+
+
+def reconstruct(
+    measurement,
+    op,
+    *,
+    solver: str = "gap-tv",
+    iters: int = 50,
+    tau: float | None = None,
+    x0=None,
+    truth=None,
+    wavelengths=None,
+    progress: bool = False,
+    **solver_options,
+) -> tuple[np.ndarray, dict]:
+    r"""Reconstruct a cube from a (multi-view) CASSI measurement.
+
+    Parameters
+    ----------
+    measurement : array (K, Hv, Wm), or (Hv, Wm) when the operator has one view
+        The frame(s) :math:`g`.
+    op : recon.operators.LinearOperator
+        Forward model with ``ishape`` (L, H, W) and ``oshape`` (K, Hv, Wm).
+    solver : {"gap-tv", "twist", "admm-tv", ...}
+        A name known to :func:`recon.solvers.solve`.
+    iters : int
+        Outer iterations.
+    tau : float, optional
+        TV weight :math:`\tau`; None uses the solver's default (:func:`default_tau`).
+    x0 : array (H, W, L), optional
+        Initial guess (the solver's default, usually :math:`H^\top g`, otherwise).
+    truth : array (H, W, L), optional
+        Reference cube: the PSNR after each iteration goes to ``info["psnr_history"]`` and
+        the final :func:`recon.metrics.all_metrics` to ``info["metrics"]``.
+    wavelengths : array (L,), optional
+        Only used for the colour metric (CIEDE2000) when ``truth`` is given.
+    progress : bool
+        Show a tqdm progress bar on stderr.
+    **solver_options
+        Passed on to the solver.
+
+    Returns
+    -------
+    cube : float32 array (H, W, L), C-contiguous
+    info : dict
+        ``solver``, ``iters`` (done), ``tau``, ``seconds`` (wall time of the solve), ``converged``,
+        ``objective`` (list, may be empty), ``solver_info``; with ``truth`` also ``metrics`` and
+        ``psnr_history``.
+    """
+    from recon.solvers import solve
+
+    if not hasattr(op, "ishape") or not hasattr(op, "oshape") or len(op.ishape) != 3:
+        raise InputError("op must be a recon operator on (L, H, W) cubes")
+    g = _as_measurement(measurement, op.oshape)
+    dtype = g.dtype
+    x0_bm = None if x0 is None else _to_band_major(x0, op.ishape, "x0", dtype)
+    truth_bm = None if truth is None else _to_band_major(truth, op.ishape, "truth", np.float32)
+
+    history: list[float] = []
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=int(iters), desc=solver, unit="it", leave=False)
+
+    def callback(it, x, info):
+        if truth_bm is not None:
+            # Global PSNR (peak = max of the truth), computed band-major without a transpose.
+            s = float(truth_bm.max())
+            mse = float(np.mean((np.asarray(x, dtype=np.float64) - truth_bm) ** 2)) / (s * s)
+            history.append(float(10 * np.log10(1.0 / mse)) if mse > 0 else float("inf"))
+            if bar is not None:
+                bar.set_postfix(psnr=f"{history[-1]:.2f}")
+        if bar is not None:
+            bar.update(1)
+        return None
+
+    kwargs = dict(solver_options)
+    kwargs["iters"] = iters
+    kwargs["tau"] = default_tau(solver) if tau is None else tau
+    if x0_bm is not None:
+        kwargs["x0"] = x0_bm
+    if truth_bm is not None or bar is not None:
+        kwargs["callback"] = callback
+
+    t0 = time.perf_counter()
+    try:
+        res = solve(solver, op, g, **kwargs)
+    finally:
+        if bar is not None:
+            bar.close()
+    wall = time.perf_counter() - t0
+
+    x = getattr(res, "x", res)
+    cube = np.ascontiguousarray(np.moveaxis(np.asarray(x), 0, 2), dtype=np.float32)
+    if not np.all(np.isfinite(cube)):
+        # Not the user's input (that was checked): the iteration diverged.
+        raise RuntimeError(f"solver {solver!r} diverged (non-finite values) on {op!r}")
+    info = {
+        "solver": solver,
+        "iters": int(getattr(res, "iterations", iters)),
+        "tau": kwargs["tau"],
+        "seconds": float(getattr(res, "seconds", wall)),
+        "wall_seconds": wall,
+        "converged": bool(getattr(res, "converged", False)),
+        "objective": [float(v) for v in getattr(res, "objective", [])],
+        "solver_info": dict(getattr(res, "info", {}) or {}),
+        "cube_shape": cube.shape,
+        "measurement_shape": tuple(g.shape),
+    }
+    if truth is not None:
+        from recon.metrics import all_metrics
+
+        info["psnr_history"] = history
+        info["metrics"] = all_metrics(cube, np.moveaxis(truth_bm, 0, 2), wavelengths)
+    return cube, info
+
+
+def standard_n_bands(mask_width: int, measurement_width: int, step: int) -> int:
+    r"""Bands implied by the widths in the standard convention: :math:`L = (W_m - W)/s + 1`.
+
+    Raises
+    ------
+    InputError
+        If the step is not a positive integer or does not divide :math:`W_m - W`.
+    """
+    if isinstance(step, bool) or int(step) != step or step < 1:
+        raise InputError(f"step must be a positive integer number of pixels, got {step!r}")
+    step = int(step)
+    extra = int(measurement_width) - int(mask_width)
+    if extra < 0:
+        raise InputError(
+            f"the measurement ({measurement_width} px wide) is narrower than the mask ({mask_width} px)"
+        )
+    if extra % step:
+        raise InputError(
+            f"step {step} does not fit: measurement width {measurement_width} - mask width {mask_width} "
+            f"= {extra} is not a multiple of {step}"
+        )
+    return extra // step + 1
+
+
+def reconstruct_standard(measurement_2d, mask, step: int, n_bands: int | None = None, **kwargs):
+    r"""Reconstruct in the standard single-view convention (MST / TSA-Net, KAIST benchmark).
+
+    Mask (H, W); band :math:`l` shifted right by :math:`\mathrm{step}\cdot l`; measurement
+    (H, W + step·(L − 1)).  ``n_bands`` defaults to what the widths imply
+    (:func:`standard_n_bands`); if given it must agree.  Other keyword arguments go to
+    :func:`reconstruct`.
+
+    Returns
+    -------
+    cube : float32 (H, W, L)
+    info : dict (see :func:`reconstruct`)
+    """
+    from recon.operators import standard_cassi
+
+    g = np.asarray(measurement_2d)
+    m = np.asarray(mask)
+    if g.ndim != 2:
+        raise InputError(f"the measurement must be 2-D (H, W + step*(L-1)), got shape {g.shape}")
+    if m.ndim != 2:
+        raise InputError(f"the mask must be 2-D (H, W), got shape {m.shape}")
+    if g.shape[0] != m.shape[0]:
+        raise InputError(f"measurement height {g.shape[0]} != mask height {m.shape[0]}")
+    implied = standard_n_bands(m.shape[1], g.shape[1], step)
+    if n_bands is not None and int(n_bands) != implied:
+        raise InputError(
+            f"{n_bands} bands do not fit: mask width {m.shape[1]}, measurement width {g.shape[1]} "
+            f"and step {step} imply {implied}"
+        )
+    m = np.asarray(m)
+    if m.dtype == bool:
+        m = m.astype(np.float32)
+    if not np.all(np.isfinite(m)):
+        raise InputError("mask contains NaN or Inf")
+    op = standard_cassi(m, int(step), implied)
+    return reconstruct(g, op, **kwargs)

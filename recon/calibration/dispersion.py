@@ -1,0 +1,167 @@
+r"""Dispersion calibration: the shift :math:`\varphi_k(\lambda)` of every view from line captures.
+
+A thin vertical line (a slit on a white target) is captured band by band.  In view :math:`k`
+and band :math:`l` the line sits at column :math:`x_{k,l}`; the mask modulates it row by row,
+but the mask acts *before* the prism, so every band of a view sees the same modulation and the
+same profile, only shifted: :math:`x_{k,l} - x_{k,\mathrm{ref}} = \varphi_k(\lambda_l)`.
+
+Centroid: the view's column profile :math:`p(x) = \sum_y I(y, x)` (the rows' sum averages the
+mask's row-to-row modulation), background removed (median), then
+
+.. math:: \bar x = \frac{\sum_x x\, p_+(x)}{\sum_x p_+(x)}
+
+over a window of ``half_width`` px around the peak, :math:`p_+ = \max(p - b, 0)`.
+
+Fit: :math:`\varphi_k` is smooth in wavelength; a glass's index, and so the deviation, is nearly
+polynomial in :math:`u = 1/\lambda^2` (Cauchy), so :func:`fit_dispersion` fits a low-order
+polynomial in :math:`u` per view, constrained to vanish at the reference wavelength.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from recon.calibration.mask import view_stack
+from recon.errors import InputError
+
+
+def line_centroids(line_captures, view_boxes, dark=None, half_width: int = 6) -> np.ndarray:
+    r"""Sub-pixel column of the line in every view and band (box coordinates).
+
+    Parameters
+    ----------
+    line_captures : (L, H, W) or (L, N, H, W) array_like
+        One monochromatic capture of the vertical line per band (N repeats averaged).
+    view_boxes : (K, 4) array_like
+    dark : (H, W) array_like, optional
+    half_width : int
+        The centroid sums over ``peak ± half_width`` columns.
+
+    Returns
+    -------
+    (K, L) float64
+
+    Raises
+    ------
+    InputError
+        Bad shapes, or a view/band where no line is visible.
+    """
+    if half_width < 1:
+        raise InputError(f"half_width must be >= 1, got {half_width}")
+    views = view_stack(line_captures, view_boxes, dark, "line captures")   # (K, L, h, w)
+    n_views, n_bands = views.shape[:2]
+    out = np.empty((n_views, n_bands), dtype=np.float64)
+    for k in range(n_views):
+        prof = views[k].sum(axis=1)                          # (L, w)
+        prof = prof - np.median(prof, axis=1, keepdims=True)
+        w = prof.shape[1]
+        x = np.arange(w, dtype=np.float64)
+        peak = np.argmax(prof, axis=1)
+        for l in range(n_bands):
+            lo = max(0, peak[l] - half_width)
+            hi = min(w, peak[l] + half_width + 1)
+            p = np.maximum(prof[l, lo:hi], 0.0)
+            s = p.sum()
+            noise = 1.4826 * np.median(np.abs(prof[l] - np.median(prof[l])))
+            if not s > 0 or prof[l, peak[l]] <= 5.0 * noise:
+                raise InputError(f"no line found in view box {k}, band {l}")
+            out[k, l] = float((x[lo:hi] * p).sum() / s)
+    return out
+
+
+@dataclass(frozen=True)
+class DispersionFit:
+    r"""Per-view dispersion :math:`\varphi_k(\lambda)` as polynomials in :math:`u = 1/\lambda^2`.
+
+    Attributes
+    ----------
+    ref_nm : float
+        Wavelength where :math:`\varphi_k = 0`.
+    coeffs : (K, degree) float64
+        :math:`\varphi_k(\lambda) = \sum_{j=1}^{d} a_{k,j} (u - u_\mathrm{ref})^j`, with
+        :math:`u` in µm⁻² (so the coefficients are of order the shifts).
+    rms_px : (K,) float64
+        RMS residual of the fit at the measured wavelengths.
+    """
+
+    ref_nm: float
+    coeffs: np.ndarray
+    rms_px: np.ndarray
+
+    def __call__(self, wavelengths_nm) -> np.ndarray:
+        r"""Return :math:`\varphi_k(\lambda)`, shape (K, L) for L wavelengths."""
+        du = _u(wavelengths_nm) - _u(self.ref_nm)
+        powers = du[None, :] ** np.arange(1, self.coeffs.shape[1] + 1)[:, None]   # (d, L)
+        return self.coeffs @ powers
+
+
+def fit_dispersion(wavelengths_nm, centroids, ref_nm: float | None = 550.0,
+                   degree: int = 2) -> DispersionFit:
+    r"""Fit :math:`\varphi_k(\lambda)` to measured line centroids.
+
+    Parameters
+    ----------
+    wavelengths_nm : (L,) array_like
+        Band centres of the line captures.
+    centroids : (K, L) array_like
+        :func:`line_centroids`.
+    ref_nm : float or None
+        Reference wavelength (:math:`\varphi = 0` there): 550 nm by default; ``None`` takes the
+        centre band.  It need not be one of the bands: the fit's constant term is free, and the
+        curve is then re-expressed relative to it.
+    degree : int
+        Polynomial degree in :math:`1/\lambda^2` (1–4; 2 covers BK7 over 450–700 nm to well
+        below 0.05 px).
+
+    Returns
+    -------
+    DispersionFit
+    """
+    lam = np.asarray(wavelengths_nm, dtype=np.float64)
+    c = np.asarray(centroids, dtype=np.float64)
+    if lam.ndim != 1 or c.ndim != 2 or c.shape[1] != lam.size:
+        raise InputError(f"centroids must be (K, L) with L = {lam.size} wavelengths, "
+                         f"got {c.shape}")
+    if not (np.all(np.isfinite(lam)) and np.all(lam > 0) and np.all(np.isfinite(c))):
+        raise InputError("wavelengths must be positive and centroids finite")
+    if not 1 <= degree <= 4:
+        raise InputError(f"degree must be 1..4, got {degree}")
+    if lam.size < degree + 1:
+        raise InputError(f"a degree-{degree} fit needs at least {degree + 1} bands, "
+                         f"got {lam.size}")
+    if ref_nm is None:
+        ref_nm = float(lam[lam.size // 2])
+    ref_nm = float(ref_nm)
+    du = _u(lam) - _u(ref_nm)
+    # Columns 1, du, du², ...: the constant absorbs the line's position in each view.
+    a = du[:, None] ** np.arange(degree + 1)[None, :]
+    sol, *_ = np.linalg.lstsq(a, c.T, rcond=None)            # (d+1, K)
+    resid = c.T - a @ sol
+    rms = np.sqrt(np.mean(resid ** 2, axis=0))
+    return DispersionFit(ref_nm=ref_nm, coeffs=np.ascontiguousarray(sol[1:].T), rms_px=rms)
+
+
+def normalise_offsets(offsets) -> tuple[np.ndarray, float]:
+    r"""Shift a (K, L) offset table so that its smallest entry is exactly 0.
+
+    The calibrated operator puts view column :math:`x_v` of band :math:`l` on box column
+    :math:`x_v + o_{k,l}`; with :math:`\min o = 0` the operator's own normalisation (which
+    subtracts :math:`\lfloor\min o\rfloor`) leaves the table unchanged.
+
+    Returns
+    -------
+    offsets : (K, L) float64
+    shift : float
+        The amount subtracted (:math:`\min`), to convert other offsets the same way.
+    """
+    o = np.asarray(offsets, dtype=np.float64)
+    m = float(o.min())
+    return o - m, m
+
+
+def _u(wavelengths_nm) -> np.ndarray:
+    """1/λ² in µm⁻²."""
+    lam_um = np.asarray(wavelengths_nm, dtype=np.float64) * 1e-3
+    return 1.0 / lam_um ** 2

@@ -1,0 +1,299 @@
+r"""Geometric calibration: a homography from the centre view to every other view.
+
+A checkerboard is captured at one wavelength (550 nm); every view shows it through its part of
+the random mask and, for the mirrored views, flipped.  For every view (box on the sensor):
+
+1. *Unmask*: divide the checkerboard capture by the white capture of the same wavelength,
+   :math:`r = I_\text{checker} / I_\text{white}`, where the mask is open, and fill the chrome
+   holes by normalised convolution,
+   :math:`\hat r = (G * (v\,r)) / (G * v)` with :math:`v` the open-pixel indicator and
+   :math:`G` a Gaussian.
+2. *Unflip*: reverse the view's known mirror axes so that the board looks like the centre's and
+   OpenCV numbers its corners in the same order.
+3. ``cv2.findChessboardCorners`` then ``cv2.cornerSubPix``; corners are put in a canonical order
+   (row-major from the top-left) and mapped back through the flip to box coordinates.
+4. ``cv2.findHomography`` (least squares over all corners) from the centre's corners to the
+   view's: a 3×3 matrix :math:`H_k` with :math:`(x_k, y_k, 1)^\top \sim H_k (x_0, y_0, 1)^\top`,
+   the convention of ``cv2.warpPerspective`` and of :class:`recon.operators.HomographyWarp`.
+
+Optionally :func:`refine_homography` corrects :math:`H_k` with dense optical flow (Farneback or
+DIS) between the centre image and the view image pulled back to the centre.
+
+The matrices here are in *box* coordinates (pixel (0, 0) = the box's top-left) at the capture
+wavelength.  The prism shifts each band's image inside the box, so the operator's view
+coordinates differ by that band's offset; :func:`to_view_coordinates` converts.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from recon.calibration.views import (VIEW_FLIPS, as_frame_stack, check_boxes, check_view_ids,
+                                     crop)
+from recon.errors import InputError
+
+_SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-4)
+
+
+def unmask(checker: np.ndarray, white: np.ndarray, open_level: float = 0.25,
+           sigma: float = 1.5) -> np.ndarray:
+    r"""Remove the mask from a checkerboard view: ratio to the white, holes filled.
+
+    Parameters
+    ----------
+    checker, white : (h, w) arrays
+        The same view's crop of the checkerboard and the white capture (same wavelength).
+    open_level : float
+        A pixel counts as open where the white exceeds this fraction of the view's white level
+        (the 99th percentile).
+    sigma : float
+        Gaussian width (px) of the normalised convolution that fills closed cells.
+
+    Returns
+    -------
+    (h, w) float32
+        :math:`r` where open, :math:`(G * (v r))/(G * v)` elsewhere (0 where no open pixel is
+        near).
+    """
+    c = np.asarray(checker, dtype=np.float64)
+    wh = np.asarray(white, dtype=np.float64)
+    top = float(np.percentile(wh, 99))
+    if not top > 0:
+        raise InputError("the white capture is dark in this view")
+    valid = wh > open_level * top
+    r = np.where(valid, c / np.where(valid, wh, 1.0), 0.0)
+    v = valid.astype(np.float64)
+    num = cv2.GaussianBlur(r, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+    den = cv2.GaussianBlur(v, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+    filled = np.where(den > 1e-3, num / np.maximum(den, 1e-3), 0.0)
+    return np.where(valid, r, filled).astype(np.float32)
+
+
+def _flip(img: np.ndarray, axes) -> np.ndarray:
+    for a in axes:
+        img = np.flip(img, axis=a)
+    return np.ascontiguousarray(img)
+
+
+def _to_u8(img: np.ndarray) -> np.ndarray:
+    lo, hi = np.percentile(img, [1, 99])
+    if not hi > lo:
+        raise InputError("the checkerboard view has no contrast")
+    return np.clip((img - lo) * (255.0 / (hi - lo)), 0, 255).astype(np.uint8)
+
+
+def find_corners(img: np.ndarray, pattern_size, flips=(), win: int = 5) -> np.ndarray:
+    """Checkerboard inner corners of an (unmasked) view image, in its own pixel coordinates.
+
+    Parameters
+    ----------
+    img : (h, w) array
+    pattern_size : (cols, rows)
+        Inner corners per row and per column (OpenCV's ``patternSize``).
+    flips : tuple of int
+        Axes to reverse before detection (the view's mirror flips), so that the order of the
+        corners matches the centre view's.
+    win : int
+        Half-size of the ``cornerSubPix`` search window.
+
+    Returns
+    -------
+    (rows*cols, 2) float64
+        (x, y) per corner, row-major from the top-left of the *unflipped* board.
+
+    Raises
+    ------
+    InputError
+        If the board is not found.
+    """
+    h, w = img.shape
+    u8 = _to_u8(_flip(np.asarray(img, dtype=np.float32), flips))
+    size = (int(pattern_size[0]), int(pattern_size[1]))
+    flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+    ok, corners = cv2.findChessboardCorners(u8, size, flags=flags)
+    if not ok:
+        ok, corners = cv2.findChessboardCornersSB(u8, size)
+    if not ok or corners is None:
+        raise InputError(f"checkerboard with {size[0]}x{size[1]} inner corners not found")
+    corners = np.ascontiguousarray(np.asarray(corners, dtype=np.float32).reshape(-1, 1, 2))
+    corners = cv2.cornerSubPix(u8, corners, (win, win), (-1, -1), _SUBPIX_CRITERIA)
+    # OpenCV 5 returns (N, 2), 4.x (N, 1, 2).
+    pts = np.asarray(corners, dtype=np.float64).reshape(size[1], size[0], 2)
+    # OpenCV may start from any end of the board: make it row-major from the top-left.
+    if pts[:, -1, 0].mean() < pts[:, 0, 0].mean():
+        pts = pts[:, ::-1]
+    if pts[-1, :, 1].mean() < pts[0, :, 1].mean():
+        pts = pts[::-1]
+    pts = pts.reshape(-1, 2).copy()
+    if 1 in flips:
+        pts[:, 0] = (w - 1) - pts[:, 0]
+    if 0 in flips:
+        pts[:, 1] = (h - 1) - pts[:, 1]
+    return pts
+
+
+def view_homographies(checker, white, view_boxes, view_ids, pattern_size,
+                      dark=None, sigma: float = 1.5, refine: str | None = None,
+                      return_corners: bool = False):
+    r"""Homographies from the centre view's box to every view's box.
+
+    Parameters
+    ----------
+    checker : (H, W) or (N, H, W) array_like
+        Checkerboard capture(s) at one wavelength (averaged).
+    white : (H, W) or (N, H, W) array_like
+        White capture(s) at the same wavelength.
+    view_boxes : (K, 4) array_like
+        ``y0, x0, h, w`` per view (see :func:`recon.calibration.views.find_view_boxes`).
+    view_ids : sequence of int
+        Ids of the boxes; must include 0 (the centre).
+    pattern_size : (cols, rows)
+        Inner corners of the board.
+    dark : array_like, optional
+        Dark frame subtracted from both captures.
+    sigma : float
+        Hole-filling Gaussian width (px).
+    refine : {None, "farneback", "dis"}
+        Optional optical-flow refinement (:func:`refine_homography`).
+    return_corners : bool
+        Also return the (K, N, 2) detected corners (box coordinates).
+
+    Returns
+    -------
+    H : (K, 3, 3) float64
+        :math:`H_k` maps centre-box :math:`(x, y, 1)` to view-box coordinates; ``H`` of the
+        centre is the identity.
+    corners : (K, N, 2) float64, only with ``return_corners``
+    """
+    ids = check_view_ids(view_ids)
+    if 0 not in ids:
+        raise InputError("geometric calibration needs the centre view (id 0)")
+    if refine not in (None, "farneback", "dis"):
+        raise InputError(f"refine must be None, 'farneback' or 'dis', got {refine!r}")
+    chk = as_frame_stack(checker, "checkerboard capture").mean(axis=0)
+    wht = as_frame_stack(white, "white capture").mean(axis=0)
+    if chk.shape != wht.shape:
+        raise InputError(f"checkerboard {chk.shape} and white {wht.shape} captures differ in shape")
+    if dark is not None:
+        d = as_frame_stack(dark, "dark frame").mean(axis=0)
+        if d.shape != chk.shape:
+            raise InputError(f"dark frame shape {d.shape} != capture shape {chk.shape}")
+        chk, wht = chk - d, wht - d
+    boxes = check_boxes(view_boxes, chk.shape, len(ids))
+    images = [unmask(crop(chk, b), crop(wht, b), sigma=sigma) for b in boxes]
+    corners = np.stack([find_corners(im, pattern_size, VIEW_FLIPS[v])
+                        for im, v in zip(images, ids)])
+    c0 = ids.index(0)
+    hs = np.empty((len(ids), 3, 3), dtype=np.float64)
+    for k in range(len(ids)):
+        if k == c0:
+            hs[k] = np.eye(3)
+            continue
+        m, _ = cv2.findHomography(corners[c0], corners[k], 0)
+        if m is None:
+            raise InputError(f"no homography found for view {ids[k]}")
+        if refine is not None:
+            m = refine_homography(images[c0], images[k], m, method=refine)
+        hs[k] = m / m[2, 2]
+    return (hs, corners) if return_corners else hs
+
+
+def refine_homography(centre: np.ndarray, view: np.ndarray, matrix, method: str = "farneback",
+                      step: int = 4, border: int = 8) -> np.ndarray:
+    r"""Correct a homography with dense optical flow.
+
+    The view is pulled back onto the centre grid with the current :math:`H`
+    (``cv2.warpPerspective`` with ``WARP_INVERSE_MAP``); the flow :math:`u` from the centre
+    image to that pulled-back image gives, at every centre pixel :math:`p`, a better
+    correspondence :math:`p \mapsto H(p + u(p))`; a least-squares homography through those
+    correspondences (on a grid of step ``step``, away from the border) is returned.
+
+    Parameters
+    ----------
+    centre, view : 2-D arrays
+        Unmasked images of the centre view and of view :math:`k` (box coordinates).
+    matrix : (3, 3)
+        Current centre → view homography.
+    method : {"farneback", "dis"}
+    step, border : int
+        Sampling grid step and excluded border (px) for the fit.
+
+    Returns
+    -------
+    (3, 3) float64
+    """
+    m = np.asarray(matrix, dtype=np.float64)
+    h, w = centre.shape
+    a = _to_u8(np.asarray(centre, dtype=np.float32))
+    back = cv2.warpPerspective(np.asarray(view, dtype=np.float32), m, (w, h),
+                               flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)
+    b = _to_u8(back)
+    if method == "farneback":
+        flow = cv2.calcOpticalFlowFarneback(a, b, None, 0.5, 3, 15, 5, 5, 1.1, 0)
+    elif method == "dis":
+        dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+        flow = dis.calc(a, b, None)
+    else:
+        raise InputError(f"unknown optical-flow method {method!r}")
+    ys, xs = np.mgrid[border:h - border:step, border:w - border:step]
+    src = np.stack([xs.ravel(), ys.ravel()], axis=1).astype(np.float64)
+    f = flow[ys.ravel(), xs.ravel()].astype(np.float64)
+    # Only textured pixels carry flow information; flat regions just follow the smoothing.
+    gy, gx = np.gradient(a.astype(np.float64))
+    tex = np.hypot(gx, gy)[ys.ravel(), xs.ravel()]
+    keep = tex > np.percentile(tex, 50)
+    if keep.sum() < 8:
+        return m
+    dst = apply_homography(m, src[keep] + f[keep])
+    r, _ = cv2.findHomography(src[keep], dst, 0)
+    return m if r is None else r / r[2, 2]
+
+
+def apply_homography(matrix, points) -> np.ndarray:
+    r"""Map (N, 2) points (x, y) through a 3×3 homography: :math:`\pi(H (x, y, 1)^\top)`."""
+    m = np.asarray(matrix, dtype=np.float64)
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    q = p @ m[:, :2].T + m[:, 2]
+    return q[:, :2] / q[:, 2:3]
+
+
+def to_view_coordinates(box_homographies, offsets_at_capture, centre: int = 0) -> np.ndarray:
+    r"""Convert box-coordinate homographies to the operator's view coordinates.
+
+    In the operator, view pixel column :math:`x_v` of band :math:`l` lands on box column
+    :math:`x_v + o_{k,l}` (``offsets`` normalised so that the smallest is 0).  A board captured
+    at a wavelength where the offsets are :math:`o_k` therefore has
+    :math:`H^\text{view}_k = T(-o_k)\, H^\text{box}_k\, T(o_0)` with :math:`T(t)` the
+    translation by :math:`t` along x.
+
+    Parameters
+    ----------
+    box_homographies : (K, 3, 3)
+        From :func:`view_homographies`.
+    offsets_at_capture : (K,)
+        :math:`o_k` at the checkerboard's wavelength, same view order.
+    centre : int
+        Index of the centre view in that order.
+
+    Returns
+    -------
+    (K, 3, 3) float64
+    """
+    hb = np.asarray(box_homographies, dtype=np.float64)
+    o = np.asarray(offsets_at_capture, dtype=np.float64)
+    if hb.ndim != 3 or hb.shape[1:] != (3, 3) or o.shape != (hb.shape[0],):
+        raise InputError(f"need (K, 3, 3) homographies and (K,) offsets, got {hb.shape}, "
+                         f"{o.shape}")
+    if not 0 <= centre < hb.shape[0]:
+        raise InputError(f"centre index {centre} out of range for {hb.shape[0]} views")
+    out = np.empty_like(hb)
+    t0 = _tx(o[centre])
+    for k in range(hb.shape[0]):
+        m = _tx(-o[k]) @ hb[k] @ t0
+        out[k] = m / m[2, 2]
+    return out
+
+
+def _tx(t: float) -> np.ndarray:
+    return np.array([[1.0, 0.0, t], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])

@@ -1,0 +1,193 @@
+r"""Per-band mask images ("shifted masks") from monochromatic captures of a uniform white target.
+
+Under a spatially uniform white of band :math:`l` the sensor records, inside view :math:`k`'s
+box, :math:`I_{k,l} = E_l\, C_{k,l}` (plus dark level and noise): the band's illumination times
+the calibrated mask image :math:`C_{k,l}` — the view's part of the mask, shifted by the band's
+dispersion, with the view's throughput and blur — which is exactly what the calibrated operator
+multiplies by.  :math:`E_l` is unknown, so every band is divided by its white level
+
+.. math:: w_l = \mathrm{P}_{99}\{ I_{k,l}(p) : p \text{ open, all views } k \},
+
+one level for all views so that their relative throughput (mirror losses, vignetting) stays in
+:math:`C`; the result is clipped to [0, 1].  The absolute per-band scale is restored later by
+the radiometric gains.
+
+When the imaging lens blurs the mask (diffraction), :func:`mask_images` can first undo it with
+Richardson–Lucy deconvolution (``skimage.restoration.richardson_lucy``) with an Airy kernel of
+first-zero radius :math:`R = 1.22\, \lambda N` (:math:`N = f/d`), converted to pixels.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.special import j1
+
+from recon.calibration.views import as_frame_stack, check_boxes, crop
+from recon.errors import InputError
+
+#: First zero of J1: the Airy pattern (2 J1(x)/x)^2 vanishes first at x = 3.8317.
+_AIRY_ZERO = 3.831705970207512
+
+
+def airy_radius_px(wavelength_nm, f_number: float, pixel_um: float) -> np.ndarray:
+    r"""Airy first-zero radius in pixels, :math:`R = 1.22\, \lambda N / p`.
+
+    With :math:`R = 1.22\, L \lambda / d` and the sensor at the focal distance
+    :math:`L = f`, :math:`d = f/N` gives :math:`R = 1.22\, \lambda N`.
+
+    Parameters
+    ----------
+    wavelength_nm : float or array
+    f_number : float
+        Working f-number of the lens that images the mask onto the sensor.
+    pixel_um : float
+        Sensor pixel pitch in µm.
+    """
+    if not (f_number > 0 and pixel_um > 0):
+        raise InputError(f"f_number and pixel_um must be positive, got {f_number}, {pixel_um}")
+    lam_um = np.asarray(wavelength_nm, dtype=np.float64) * 1e-3
+    return 1.22 * lam_um * f_number / pixel_um
+
+
+def airy_kernel(radius_px: float, support: float = 2.0, oversample: int = 5) -> np.ndarray:
+    r"""Normalised Airy point-spread function on the pixel grid.
+
+    :math:`\mathrm{PSF}(r) \propto (2 J_1(x)/x)^2` with :math:`x = 3.8317\, r / R`, averaged
+    over each pixel (``oversample``² sub-samples), truncated at ``support`` × R and summing to 1.
+
+    Parameters
+    ----------
+    radius_px : float
+        First-zero radius :math:`R` in pixels (> 0).
+    support : float
+        Kernel half-width in units of R (at least one pixel).
+    oversample : int
+        Sub-samples per pixel side.
+
+    Returns
+    -------
+    (2n+1, 2n+1) float64
+    """
+    if not radius_px > 0:
+        raise InputError(f"Airy radius must be positive, got {radius_px}")
+    n = max(1, int(np.ceil(support * radius_px)))
+    s = (np.arange(oversample) + 0.5) / oversample - 0.5
+    ax = (np.arange(-n, n + 1)[:, None] + s[None, :]).ravel()
+    yy, xx = np.meshgrid(ax, ax, indexing="ij")
+    x = _AIRY_ZERO * np.hypot(xx, yy) / radius_px
+    with np.errstate(invalid="ignore", divide="ignore"):
+        psf = np.where(x > 1e-8, (2.0 * j1(x) / x) ** 2, 1.0)
+    m = 2 * n + 1
+    psf = psf.reshape(m, oversample, m, oversample).mean(axis=(1, 3))
+    return psf / psf.sum()
+
+
+def white_levels(views: np.ndarray, open_fraction: float = 0.5,
+                 percentile: float = 99.0) -> np.ndarray:
+    r"""Per-band white level :math:`w_l` of (K, L, h, w) view crops.
+
+    Open pixels are those above ``open_fraction`` × the band's 99.9th percentile; the level is
+    the ``percentile``-th percentile of those (all views together).
+    """
+    k, n_bands = views.shape[:2]
+    out = np.empty(n_bands, dtype=np.float64)
+    for l in range(n_bands):
+        band = views[:, l].ravel()
+        top = float(np.percentile(band, 99.9))
+        if not top > 0:
+            raise InputError(f"white capture of band {l} is dark")
+        out[l] = float(np.percentile(band[band > open_fraction * top], percentile))
+    return out
+
+
+def mask_images(white_captures, view_boxes, dark=None, airy_radius=None, rl_iterations: int = 30,
+                percentile: float = 99.0) -> np.ndarray:
+    r"""Every view's mask image per band, normalised to [0, 1].
+
+    Parameters
+    ----------
+    white_captures : (L, H, W) or (L, N, H, W) array_like
+        Monochromatic captures of a uniform white target, one per band (or N repeats per band,
+        averaged to lower the noise).
+    view_boxes : (K, 4) array_like
+        ``y0, x0, h, w`` per view, all the same size (:func:`~recon.calibration.views.find_view_boxes`).
+    dark : (H, W) array_like, optional
+        Dark frame subtracted first.
+    airy_radius : float or (L,) array_like, optional
+        Airy first-zero radius in pixels per band (:func:`airy_radius_px`); when given, every
+        view and band is deconvolved with Richardson–Lucy before normalisation.
+    rl_iterations : int
+        Richardson–Lucy iterations.
+    percentile : float
+        Percentile of the open pixels taken as the white level (see the module docstring).
+
+    Returns
+    -------
+    (K, L, Hv, Wm) float32
+        :math:`C_{k,l}` in box coordinates.
+
+    Raises
+    ------
+    InputError
+        Bad shapes, boxes of different sizes or outside the frame, non-positive radii.
+    """
+    views = view_stack(white_captures, view_boxes, dark, "white captures")   # (K, L, h, w)
+    n_bands = views.shape[1]
+    views = np.maximum(views, 0.0)
+    if airy_radius is not None:
+        radii = np.broadcast_to(np.asarray(airy_radius, dtype=np.float64), (n_bands,))
+        if not np.all(radii > 0):
+            raise InputError(f"Airy radii must be positive, got {radii}")
+        views = deconvolve(views, radii, rl_iterations)
+    levels = white_levels(views, percentile=percentile)
+    out = views / levels[None, :, None, None]
+    return np.clip(out, 0.0, 1.0).astype(np.float32)
+
+
+def deconvolve(views: np.ndarray, radii: np.ndarray, iterations: int = 30) -> np.ndarray:
+    r"""Richardson–Lucy deconvolution of (K, L, h, w) crops with the band's Airy kernel.
+
+    Each crop is scaled to a unit maximum (RL's multiplicative update needs a non-negative image
+    and skimage clips to [-1, 1]), reflected-padded by the kernel half-width so that the box edge
+    does not ring, deconvolved, cropped and scaled back.
+    """
+    from skimage.restoration import richardson_lucy
+
+    if iterations < 1:
+        raise InputError(f"rl_iterations must be >= 1, got {iterations}")
+    out = np.empty(views.shape, dtype=np.float64)
+    for l in range(views.shape[1]):
+        psf = airy_kernel(float(radii[l]))
+        pad = psf.shape[0] // 2
+        for k in range(views.shape[0]):
+            v = views[k, l]
+            top = float(v.max())
+            if not top > 0:
+                out[k, l] = 0.0
+                continue
+            p = np.pad(v / top, pad, mode="reflect")
+            d = richardson_lucy(p, psf, num_iter=iterations, clip=False)
+            out[k, l] = d[pad:pad + v.shape[0], pad:pad + v.shape[1]] * top
+    return out
+
+
+def view_stack(captures, view_boxes, dark=None, name: str = "captures") -> np.ndarray:
+    """Crop (L, H, W) or (L, N, H, W) captures to (K, L, h, w) float64 view stacks.
+
+    Repeats (N) are averaged and the dark frame subtracted on the crops only, so memory stays
+    proportional to the views, not to L full frames in float64.
+    """
+    caps = np.asarray(captures)
+    if caps.ndim == 4:
+        caps = caps.mean(axis=1, dtype=np.float32)
+    caps = as_frame_stack(caps, name)
+    boxes = check_boxes(view_boxes, caps.shape[1:])
+    d = None
+    if dark is not None:
+        d = as_frame_stack(dark, "dark frame").mean(axis=0)
+        if d.shape != caps.shape[1:]:
+            raise InputError(f"dark frame shape {d.shape} != capture shape {caps.shape[1:]}")
+    out = np.stack([crop(caps, b).astype(np.float64) for b in boxes])
+    if d is not None:
+        out -= np.stack([crop(d, b) for b in boxes])[:, None]
+    return out

@@ -1,0 +1,117 @@
+r"""From a calibration to the forward operator and to the per-view measurements of a raw frame.
+
+:func:`operator_from_calibration` builds :class:`recon.operators.CalibratedCassi` with
+
+.. math:: g_k = \sum_l C_{k,l} \odot S_{o_{k,l}}\big(W_k f_l\big),
+
+:math:`C` the calibrated mask images, :math:`o` the normalised offsets (absolute columns in the
+view's box) and :math:`W_k` the homography warp (the identity for the centre view).
+:func:`measurements` cuts the matching (K, Hv, Wm) stack out of a raw frame with the same boxes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from recon.calibration.store import Calibration
+from recon.calibration.views import check_view_ids, crop
+from recon.errors import InputError
+
+
+def _select(cal: Calibration, view_ids) -> list[int]:
+    if not isinstance(cal, Calibration):
+        raise InputError(f"expected a Calibration, got {type(cal).__name__}")
+    ids = cal.view_ids if view_ids is None else check_view_ids(view_ids)
+    missing = [v for v in ids if v not in cal.view_ids]
+    if missing:
+        raise InputError(f"views {missing} are not in the calibration (it has "
+                         f"{list(cal.view_ids)})")
+    return [cal.view_ids.index(v) for v in ids]
+
+
+def operator_from_calibration(cal: Calibration, view_ids=None):
+    """The calibrated forward operator for some of the calibrated views.
+
+    Parameters
+    ----------
+    cal : Calibration
+    view_ids : sequence of int, optional
+        Views to use, in this order (default: all of the calibration's).
+
+    Returns
+    -------
+    recon.operators.CalibratedCassi
+        ``(L, H, W) -> (K, Hv, Wm)`` with ``(H, W, L) = cal.cube_shape``.
+    """
+    from recon.operators.calibrated import CalibratedCassi
+    from recon.operators.warp import HomographyWarp
+
+    idx = _select(cal, view_ids)
+    h, w, n_bands = cal.cube_shape
+    view_shape = cal.view_shape
+    warps = []
+    for i in idx:
+        m = cal.homographies[i]
+        if np.allclose(m, np.eye(3), atol=1e-9) and view_shape == (h, w):
+            warps.append(None)
+        else:
+            warps.append(HomographyWarp(m, (h, w), view_shape))
+    return CalibratedCassi(cal.mask_images[idx], cal.offsets[idx], warps=warps,
+                           cube_shape=(n_bands, h, w))
+
+
+def check_design(cal: Calibration, metadata: dict | None, what: str = "raw frame") -> None:
+    """Raise :class:`InputError` when a frame's ``design_hash`` differs from the calibration's.
+
+    A missing hash on either side is accepted (real captures may carry none).
+    """
+    if not metadata:
+        return
+    h = metadata.get("design_hash")
+    if h is not None and cal.design_hash is not None and str(h) != cal.design_hash:
+        raise InputError(f"{what} was taken with design {h}, but the calibration is for design "
+                         f"{cal.design_hash}")
+
+
+def measurements(frame, cal: Calibration, view_ids=None, metadata: dict | None = None,
+                 dark=None) -> np.ndarray:
+    """Cut the per-view measurements out of a raw frame.
+
+    Parameters
+    ----------
+    frame : (H, W) array_like
+        Full-sensor raw frame (DN).
+    cal : Calibration
+    view_ids : sequence of int, optional
+        Same meaning and order as for :func:`operator_from_calibration`.
+    metadata : dict, optional
+        The frame's sidecar; its ``design_hash`` must match the calibration's.
+    dark : (H, W) array_like, optional
+        Dark frame subtracted first.
+
+    Returns
+    -------
+    (K, Hv, Wm) float32
+    """
+    check_design(cal, metadata)
+    idx = _select(cal, view_ids)
+    f = np.asarray(frame, dtype=np.float32)
+    if f.ndim != 2:
+        raise InputError(f"a raw frame must be 2-D, got shape {f.shape}")
+    if dark is not None:
+        d = np.asarray(dark, dtype=np.float32)
+        if d.shape != f.shape:
+            raise InputError(f"dark frame shape {d.shape} != frame shape {f.shape}")
+        f = f - d
+    boxes = cal.view_boxes[idx]
+    if np.any(boxes[:, 0] + boxes[:, 2] > f.shape[0]) or np.any(boxes[:, 1] + boxes[:, 3] > f.shape[1]):
+        raise InputError(f"frame {f.shape} is smaller than the calibrated sensor area")
+    return np.ascontiguousarray(np.stack([crop(f, b) for b in boxes]), dtype=np.float32)
+
+
+def read_measurements(path, cal: Calibration, view_ids=None, dark=None) -> np.ndarray:
+    """:func:`measurements` of a raw frame file (``.exr`` + JSON sidecar)."""
+    from recon.io.raw import read_raw
+
+    frame, meta = read_raw(path)
+    return measurements(frame, cal, view_ids, metadata=meta, dark=dark)

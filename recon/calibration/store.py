@@ -1,0 +1,272 @@
+r"""One calibration file: arrays in ``.npz``, metadata in a JSON sidecar, cached by design hash.
+
+``<name>.npz`` (loaded with ``allow_pickle=False``) holds
+
+===============  ==================  ===========================================================
+view_boxes       (K, 4) int64        ``y0, x0, h, w`` of every view on the sensor
+homographies     (K, 3, 3) float64   centre-view → view coordinates (operator convention)
+mask_images      (K, L, Hv, Wm) f32  calibrated per-band mask images, box coordinates
+offsets          (K, L) float64      column where the view image's column 0 lands, min 0
+gains            (L,) float64        radiometric gains (radiance = gain × reconstruction)
+wavelengths      (L,) float64        band centres, nm
+===============  ==================  ===========================================================
+
+and ``<name>.json`` holds ``design_hash``, ``cube_shape`` ([H, W, L], the API layout),
+``view_ids``, ``captures`` (what it was made from) and ``created`` (UTC, ISO 8601).  Both files
+are written atomically (image first, then sidecar); loading validates every field and shape.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+from recon.calibration.dispersion import normalise_offsets
+from recon.calibration.geometry import to_view_coordinates
+from recon.calibration.views import check_boxes, check_view_ids
+from recon.errors import InputError
+
+FORMAT = "kaleidospec-calibration"
+VERSION = 1
+ARRAY_FIELDS = ("view_boxes", "homographies", "mask_images", "offsets", "gains", "wavelengths")
+JSON_FIELDS = ("design_hash", "cube_shape", "view_ids", "captures", "created")
+_HASH_RE = re.compile(r"^[0-9A-Za-z_-]{1,128}$")
+#: Same tolerance as the operators' offset snapping.
+_SNAP = 1e-6
+
+
+@dataclass
+class Calibration:
+    """A complete instrument calibration (see the module docstring for the fields).
+
+    Construction validates shapes and values; bad input raises :class:`InputError`.
+    """
+
+    view_ids: tuple
+    view_boxes: np.ndarray
+    homographies: np.ndarray
+    mask_images: np.ndarray
+    offsets: np.ndarray
+    gains: np.ndarray
+    wavelengths: np.ndarray
+    cube_shape: tuple
+    design_hash: str | None = None
+    captures: list = field(default_factory=list)
+    created: str = ""
+
+    def __post_init__(self):
+        self.view_ids = check_view_ids(self.view_ids)
+        k = len(self.view_ids)
+        self.view_boxes = check_boxes(self.view_boxes, n_views=k)
+        self.homographies = _array(self.homographies, "homographies", np.float64, (k, 3, 3))
+        self.mask_images = _array(self.mask_images, "mask_images", np.float32, None, ndim=4)
+        kk, n_bands, hv, wm = self.mask_images.shape
+        if kk != k:
+            raise InputError(f"mask_images has {kk} views, view_ids has {k}")
+        if (hv, wm) != tuple(self.view_boxes[0, 2:]):
+            raise InputError(f"mask_images are {hv}x{wm} but the view boxes are "
+                             f"{self.view_boxes[0, 2]}x{self.view_boxes[0, 3]}")
+        self.offsets = _array(self.offsets, "offsets", np.float64, (k, n_bands))
+        self.gains = _array(self.gains, "gains", np.float64, (n_bands,))
+        self.wavelengths = _array(self.wavelengths, "wavelengths", np.float64, (n_bands,))
+        if np.any(self.wavelengths <= 0) or np.any(np.diff(self.wavelengths) <= 0):
+            raise InputError("wavelengths must be positive and increasing")
+        if np.min(self.offsets) < -_SNAP:
+            raise InputError(f"offsets must be >= 0 (normalised), got min {self.offsets.min():g}")
+        try:
+            cs = tuple(int(v) for v in self.cube_shape)
+        except (TypeError, ValueError):
+            raise InputError(f"cube_shape must be [H, W, L], got {self.cube_shape!r}") from None
+        if len(cs) != 3 or min(cs) < 1 or cs[2] != n_bands:
+            raise InputError(f"cube_shape must be [H, W, L={n_bands}], got {list(cs)}")
+        self.cube_shape = cs
+        if self.design_hash is not None:
+            self.design_hash = check_hash(self.design_hash)
+        self.captures = [str(c) for c in self.captures]
+        if not self.created:
+            self.created = datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+    @property
+    def n_views(self) -> int:
+        return len(self.view_ids)
+
+    @property
+    def n_bands(self) -> int:
+        return int(self.wavelengths.size)
+
+    @property
+    def view_shape(self) -> tuple[int, int]:
+        """(Hv, Wv): the undispersed view image inside a box of width Wm."""
+        wv = self.mask_images.shape[3] - math.ceil(float(self.offsets.max()) - _SNAP)
+        return int(self.mask_images.shape[2]), int(wv)
+
+    def metadata(self) -> dict:
+        return {"format": FORMAT, "version": VERSION, "design_hash": self.design_hash,
+                "cube_shape": list(self.cube_shape), "view_ids": list(self.view_ids),
+                "captures": list(self.captures), "created": self.created}
+
+
+def build_calibration(*, view_ids, view_boxes, box_homographies, mask_images, wavelengths,
+                      dispersion, checker_dispersion, gains=None, design_hash=None,
+                      captures=()) -> Calibration:
+    r"""Assemble a :class:`Calibration` from the results of the individual steps.
+
+    Normalises the offsets (smallest 0, :func:`~recon.calibration.dispersion.normalise_offsets`),
+    converts the box homographies to view coordinates at the checkerboard's wavelength
+    (:func:`~recon.calibration.geometry.to_view_coordinates`) and sets the cube to the centre
+    view's undispersed size :math:`H_v \times (W_m - \lceil\max o\rceil)`.
+
+    Parameters
+    ----------
+    view_ids : sequence of int
+        Must contain 0 (the centre).
+    view_boxes : (K, 4)
+    box_homographies : (K, 3, 3)
+        From :func:`~recon.calibration.geometry.view_homographies` (box coordinates).
+    mask_images : (K, L, Hv, Wm)
+        From :func:`~recon.calibration.mask.mask_images`.
+    wavelengths : (L,)
+    dispersion : (K, L)
+        :math:`\varphi_k(\lambda_l)` relative to any reference (e.g. a
+        :class:`~recon.calibration.dispersion.DispersionFit` evaluated at the bands).
+    checker_dispersion : (K,)
+        :math:`\varphi_k` at the checkerboard's wavelength, same reference.
+    gains : (L,), optional
+        Radiometric gains (ones when not yet calibrated).
+    design_hash : str, optional
+    captures : sequence of str
+        Names of the captures used (recorded in the sidecar).
+    """
+    ids = check_view_ids(view_ids)
+    if 0 not in ids:
+        raise InputError("a calibration needs the centre view (id 0)")
+    phi = np.asarray(dispersion, dtype=np.float64)
+    offsets, shift = normalise_offsets(phi)
+    chk = np.asarray(checker_dispersion, dtype=np.float64) - shift
+    hv_ = to_view_coordinates(box_homographies, chk, centre=ids.index(0))
+    masks = np.asarray(mask_images, dtype=np.float32)
+    n_bands = np.asarray(wavelengths).size
+    if masks.ndim != 4:
+        raise InputError(f"mask_images must be (K, L, Hv, Wm), got shape {masks.shape}")
+    wv = masks.shape[3] - math.ceil(float(offsets.max()) - _SNAP)
+    if wv < 1:
+        raise InputError(f"the dispersion span {offsets.max():.1f} px leaves no view width in "
+                         f"boxes {masks.shape[3]} px wide")
+    return Calibration(view_ids=ids, view_boxes=view_boxes, homographies=hv_,
+                       mask_images=masks, offsets=offsets,
+                       gains=np.ones(n_bands) if gains is None else gains,
+                       wavelengths=wavelengths, cube_shape=(masks.shape[2], wv, n_bands),
+                       design_hash=design_hash, captures=list(captures))
+
+
+def check_hash(design_hash) -> str:
+    """A design hash usable in a file name (letters, digits, ``_``, ``-``)."""
+    h = str(design_hash)
+    if not _HASH_RE.match(h):
+        raise InputError(f"design hash {h!r} is not a plain token (letters, digits, _ and -)")
+    return h
+
+
+def _paths(path) -> tuple[Path, Path]:
+    p = Path(path)
+    if p.suffix.lower() in (".npz", ".json"):
+        p = p.with_suffix("")
+    return p.with_name(p.name + ".npz"), p.with_name(p.name + ".json")
+
+
+def calibration_path(cache_dir, design_hash) -> Path:
+    """``<cache_dir>/calibration-<design_hash>.npz`` (sidecar: same name, ``.json``)."""
+    return Path(cache_dir) / f"calibration-{check_hash(design_hash)}.npz"
+
+
+def save_calibration(path, cal: Calibration, *, protect=()) -> tuple[Path, Path]:
+    """Write ``cal`` as ``<path>.npz`` + ``<path>.json``, each atomically.
+
+    Returns
+    -------
+    (npz_path, json_path)
+    """
+    from recon.io.atomic import atomic_path, write_text
+
+    if not isinstance(cal, Calibration):
+        raise InputError(f"expected a Calibration, got {type(cal).__name__}")
+    npz, side = _paths(path)
+    text = json.dumps(cal.metadata(), indent=2, sort_keys=True) + "\n"
+    with atomic_path(npz, protect=protect) as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, **{name: getattr(cal, name) for name in ARRAY_FIELDS})
+    write_text(side, text, protect=protect)
+    return npz, side
+
+
+def load_calibration(path) -> Calibration:
+    """Read and validate a calibration written by :func:`save_calibration`.
+
+    Raises
+    ------
+    InputError
+        Missing file, missing or malformed field (named in the message), inconsistent shapes.
+    """
+    npz, side = _paths(path)
+    for p in (npz, side):
+        if not p.is_file():
+            raise InputError(f"{p}: calibration file not found")
+    try:
+        meta = json.loads(side.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"{side}: not a readable JSON sidecar: {exc}") from None
+    if not isinstance(meta, dict):
+        raise InputError(f"{side}: the sidecar must hold a JSON object")
+    if meta.get("format", FORMAT) != FORMAT:
+        raise InputError(f"{side}: not a calibration sidecar (format {meta.get('format')!r})")
+    for name in JSON_FIELDS:
+        if name not in meta:
+            raise InputError(f"{side}: missing field {name!r}")
+    try:
+        with np.load(npz, allow_pickle=False) as z:
+            missing = [n for n in ARRAY_FIELDS if n not in z.files]
+            if missing:
+                raise InputError(f"{npz}: missing field {missing[0]!r}")
+            arrays = {n: z[n] for n in ARRAY_FIELDS}
+    except InputError:
+        raise
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{npz}: not a readable calibration archive: {exc}") from None
+    try:
+        return Calibration(view_ids=meta["view_ids"], cube_shape=meta["cube_shape"],
+                           design_hash=meta["design_hash"], captures=meta["captures"] or [],
+                           created=str(meta["created"]), **arrays)
+    except InputError as exc:
+        raise InputError(f"{npz}: {exc}") from None
+
+
+def load_cached(cache_dir, design_hash) -> Calibration | None:
+    """The cached calibration of a design, or ``None`` when there is none yet."""
+    p = calibration_path(cache_dir, design_hash)
+    if not p.is_file():
+        return None
+    cal = load_calibration(p)
+    if cal.design_hash != design_hash:
+        raise InputError(f"{p}: holds the calibration of design {cal.design_hash!r}, "
+                         f"not {design_hash!r}")
+    return cal
+
+
+def _array(a, name, dtype, shape, ndim=None) -> np.ndarray:
+    try:
+        arr = np.ascontiguousarray(a, dtype=dtype)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be a numeric array") from None
+    if shape is not None and arr.shape != tuple(shape):
+        raise InputError(f"{name} has shape {arr.shape}, expected {tuple(shape)}")
+    if ndim is not None and arr.ndim != ndim:
+        raise InputError(f"{name} must be {ndim}-D, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise InputError(f"{name} contains non-finite values")
+    return arr

@@ -1,0 +1,409 @@
+r"""The (multi-view) CASSI forward model and its exact adjoint.
+
+For a scene cube :math:`f` in centre-view coordinates, band-major :math:`(L, H, W)`, view
+:math:`k` records
+
+.. math::
+
+    g_k = \sum_{l=1}^{L} S_{k,l}\big(M_k \odot W_k f_l\big), \qquad g = [g_1; \dots; g_K],
+
+with :math:`W_k` the view's geometric map (:mod:`recon.operators.warp`), :math:`M_k` its mask
+(view coordinates, :math:`H_v \times W_v`) and :math:`S_{k,l}` the horizontal shift by
+:math:`\varphi_{k,l}` pixels (:mod:`recon.operators.dispersion`; linear interpolation for
+sub-pixel shifts).  The adjoint is
+
+.. math::
+
+    f_l = \sum_k W_k^\top\big(M_k \odot S_{k,l}^\top g_k\big).
+
+All shifts are normalised together so that the smallest one starts at column 0, and the
+measurement is :math:`(K, H_v, W_m)` with :math:`W_m = W_v + \lceil\max\varphi\rceil -
+\lfloor\min\varphi\rfloor`.  ``row_norms_sq`` gives the diagonal of :math:`HH^\top` in closed
+form (GAP-TV divides by it).
+
+The loops run over views and bands only; each band is a contiguous image, masks multiply into a
+reused buffer and shifts are slice additions into the preallocated measurement.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from recon.errors import InputError
+from recon.operators.base import LinearOperator
+from recon.operators.dispersion import (
+    as_offsets, shift_row_norms, snap, span, split, work_dtype,
+)
+from recon.operators.mask import as_mask
+from recon.operators.warp import Flip, Identity, Warp, as_warp
+
+#: Ideal geometric map of each kaleidoscope view id (centre, left, right, top, bottom, corners):
+#: the flip axes of the mirror image seen in that view.
+KALEIDOSCOPE_FLIPS: tuple[tuple[int, ...], ...] = (
+    (), (1,), (1,), (0,), (0,), (0, 1), (0, 1), (0, 1), (0, 1),
+)
+VIEW_NAMES = ("centre", "left", "right", "top", "bottom",
+              "top-left", "top-right", "bottom-left", "bottom-right")
+
+
+@dataclass
+class View:
+    r"""One view of the instrument.
+
+    Parameters
+    ----------
+    mask : (Hv, Wv) array_like
+        The view's coded-aperture transmission :math:`M_k` in view coordinates (float32,
+        values in [0, 1] for a physical mask).
+    offsets : (L,) array_like of float
+        Dispersion shift :math:`\varphi_k(\lambda_l)` of every band in pixels; + is towards
+        larger x; integer or sub-pixel, any sign.
+    warp : Warp or None
+        :math:`W_k`, centre image → view image; ``None`` is the identity.
+    """
+
+    mask: np.ndarray
+    offsets: np.ndarray
+    warp: Warp | None = None
+
+    def __post_init__(self):
+        self.mask = as_mask(self.mask)
+        self.offsets = as_offsets(self.offsets)
+        self.warp = as_warp(self.warp)
+
+
+class CassiOperator(LinearOperator):
+    r"""Multi-view CASSI :math:`H = [H_1; \dots; H_K]`, ``(L, H, W) -> (K, Hv, Wm)``.
+
+    Parameters
+    ----------
+    views : sequence of View
+        All with the same mask shape (Hv, Wv) and the same number of bands L.
+    cube_shape : (L, H, W), optional
+        The band-major scene shape (``ishape``).  Defaults to ``(L, Hv, Wv)``, or to the input
+        shape of the first view whose warp has one.
+
+    Attributes
+    ----------
+    views : list of View
+        With warps bound to concrete shapes.
+    offsets : (K, L) float64
+        The normalised shifts (smallest floor at column 0).
+    n_views, n_bands : int
+    """
+
+    def __init__(self, views: Sequence[View], cube_shape=None):
+        if isinstance(views, View):
+            views = [views]
+        views = list(views)
+        if not views:
+            raise InputError("CassiOperator needs at least one view")
+        for i, v in enumerate(views):
+            if not isinstance(v, View):
+                raise InputError(f"views[{i}] must be a View, got {type(v).__name__}")
+        vshape = views[0].mask.shape
+        n_bands = views[0].offsets.size
+        for i, v in enumerate(views):
+            if v.mask.shape != vshape:
+                raise InputError(f"view {i} mask shape {v.mask.shape} != view 0 mask shape {vshape}")
+            if v.offsets.size != n_bands:
+                raise InputError(f"view {i} has {v.offsets.size} offsets, view 0 has {n_bands}")
+        cube_shape = _cube_shape(cube_shape, n_bands, vshape, views)
+        hw = cube_shape[1:]
+        self.views = [View(v.mask, v.offsets, v.warp.bind(hw, vshape)) for v in views]
+        table = np.stack([v.offsets for v in self.views])
+        lo, extra = span(table)
+        self.offsets = table - lo
+        self._parts = [[split(p) for p in row] for row in self.offsets]
+        self.n_views = len(self.views)
+        self.n_bands = n_bands
+        self._plan = [_view_plan(v, row, extra) for v, row in zip(self.views, self.offsets)]
+        self._masks64 = None
+        self._row_norms = None
+        super().__init__(cube_shape, (self.n_views, vshape[0], vshape[1] + extra))
+
+    # -- helpers ---------------------------------------------------------------------------
+    def _masks(self, dt):
+        if dt == np.float32:
+            return [p.mask for p in self._plan]
+        if self._masks64 is None:
+            self._masks64 = [p.mask.astype(np.float64) for p in self._plan]
+        return self._masks64
+
+    # -- operator --------------------------------------------------------------------------
+    # Both directions work on flattened rows: a view image is written into the left Wv columns
+    # of a zero-padded (Hv, Wm) buffer, so shifting it by a columns is a 1-D offset of a in the
+    # flattened measurement (the zero padding keeps rows apart because a + 1 + Wv <= Wm).
+    # Contiguous 1-D adds are several times faster than the same adds on 2-D column slices.
+    # Flipped views never read or write reversed strides per band: see _view_plan.
+    def _forward(self, x):
+        dt = work_dtype(x)
+        x = x.astype(dt, copy=False)
+        hv, wv = self.views[0].mask.shape
+        wm = self.oshape[2]
+        n = (hv - 1) * wm + wv  # span of the meaningful entries of a padded, flattened image
+        out = np.zeros(self.oshape, dtype=dt)
+        pad = np.zeros((hv, wm), dtype=dt)
+        body, flat = pad[:, :wv], pad.reshape(-1)[:n]
+        q = np.zeros(hv * wm, dtype=dt)
+        acc = np.zeros((hv, wm), dtype=dt) if any(p.flip for p in self._plan) else None
+        for k, (plan, mask) in enumerate(zip(self._plan, self._masks(dt))):
+            xv = x if plan.warp is None else plan.warp.apply(x)
+            if plan.flip:
+                acc.fill(0)
+                g = acc
+            else:
+                g = out[k]
+            gf = g.reshape(-1)
+            # Sub-pixel shifts: sum_l [(1-t) T_a + t T_{a+1}] b_l = P - Q + T_1 Q with
+            # P = sum_l T_a b_l and Q = sum_l t T_a b_l: three 1-D passes per band.
+            if plan.subpixel:
+                q.fill(0)
+            for l, (a, t) in enumerate(plan.parts):
+                np.multiply(xv[l], mask, out=body)
+                seg = gf[a:a + n]
+                np.add(seg, flat, out=seg)
+                if t != 0.0:
+                    flat *= t
+                    seg = q[a:a + n]
+                    np.add(seg, flat, out=seg)
+            if plan.subpixel:
+                gf -= q
+                np.add(gf[1:], q[:-1], out=gf[1:])
+            if plan.flip:
+                np.copyto(out[k], g[plan.flip])
+        return out
+
+    def _adjoint(self, y):
+        dt = work_dtype(y)
+        y = np.ascontiguousarray(y, dtype=dt)
+        hv, wv = self.views[0].mask.shape
+        wm = self.oshape[2]
+        n = (hv - 1) * wm + wv
+        # A permutation first view covers every pixel, so it may assign instead of add.
+        fresh = self._plan[0].warp is None
+        out = np.empty(self.ishape, dtype=dt) if fresh else np.zeros(self.ishape, dtype=dt)
+        zflat = np.zeros(hv * wm, dtype=dt)
+        z, zn = zflat.reshape(hv, wm)[:, :wv], zflat[:n]
+        dy = np.empty(hv * wm - 1, dtype=dt)
+        yflip = np.empty((hv, wm), dtype=dt)
+        scratch = np.empty(n, dtype=dt)
+        band = np.empty((hv, wv), dtype=dt)
+        bflat = band.reshape(-1)
+        for k, (plan, mask) in enumerate(zip(self._plan, self._masks(dt))):
+            if plan.flip:
+                np.copyto(yflip, y[k][plan.flip])
+                yk = yflip.reshape(-1)
+            else:
+                yk = y[k].reshape(-1)
+            if plan.subpixel:
+                np.subtract(yk[1:], yk[:-1], out=dy)
+            tmp = None if plan.warp is None else np.empty((self.n_bands, hv, wv), dtype=dt)
+            for l, (a, t) in enumerate(plan.parts):
+                # z[i] = (1-t) y[a+i] + t y[a+1+i] = y[a+i] + t dy[a+i]
+                if t == 0.0:
+                    np.copyto(zn, yk[a:a + n])
+                else:
+                    np.multiply(dy[a:a + n], t, out=scratch)
+                    np.add(scratch, yk[a:a + n], out=zn)
+                if tmp is not None:
+                    np.multiply(z, mask, out=tmp[l])
+                elif fresh and k == 0:
+                    np.multiply(z, mask, out=out[l])
+                else:
+                    np.multiply(z, mask, out=band)
+                    ol = out[l].reshape(-1)
+                    np.add(ol, bflat, out=ol)
+            if tmp is not None:
+                out += plan.warp.apply_adjoint(tmp)
+        return out
+
+    def row_norms_sq(self) -> np.ndarray:
+        r"""Diagonal of :math:`HH^\top`, shape ``oshape`` (float64), in closed form.
+
+        Row :math:`(k, y, x)` collects, for each band, one interpolated row of
+        :math:`\mathrm{diag}(M_k) W_k`; distinct bands touch distinct unknowns, so the squared
+        norms add up over bands (see :func:`~recon.operators.dispersion.shift_row_norms`).
+        """
+        if self._row_norms is None:
+            out = np.zeros(self.oshape, dtype=np.float64)
+            for k, view in enumerate(self.views):
+                m = view.mask.astype(np.float64)
+                n, c = view.warp.norm_parts()
+                nn = m * m * n
+                cc = None if c is None else m[:, :-1] * m[:, 1:] * c
+                for a, t in self._parts[k]:
+                    shift_row_norms(nn, cc, a, t, out[k])
+            self._row_norms = out
+        return self._row_norms.copy()
+
+    def __repr__(self):
+        return (f"<CassiOperator {self.n_views} view(s), {self.n_bands} bands: "
+                f"{self.ishape} -> {self.oshape}>")
+
+
+@dataclass
+class _Plan:
+    """How the hot loops run one view: with ``warp`` None the view is computed as
+    ``flip(sum_l T_parts(mask * f_l))`` (``flip`` an index into the measurement, ``()`` for
+    none), else as ``sum_l T_parts(mask * warp(f)_l)``."""
+
+    mask: np.ndarray
+    parts: list
+    subpixel: bool
+    flip: tuple
+    warp: Warp | None
+
+
+def _view_plan(view: View, offsets: np.ndarray, extra: int) -> _Plan:
+    r"""Rewrite a flipped view so that the per-band work reads and writes contiguously.
+
+    With :math:`F_y`, :math:`F_x` the row and column reversals (of a view image, or of the
+    measurement) and :math:`E = W_m - W_v`:
+
+    - :math:`M \odot F f = F(FM \odot f)` for any flip :math:`F`;
+    - :math:`T_\varphi F_x v = F_x T_{E-\varphi} v` (a shift of a mirrored image is the mirror
+      of the opposite shift; linear interpolation is symmetric), and :math:`T_\varphi` commutes
+      with :math:`F_y`.
+
+    So a flipped view is the flip of an unflipped one with the flipped mask and, for column
+    flips, offsets :math:`E - \varphi`: one reversal per view instead of strided passes per band.
+    This is the dispersion inversion of mirrored views seen from the centre view.
+    """
+    warp = view.warp
+    if isinstance(warp, Identity):
+        return _Plan(view.mask, [split(p) for p in offsets], bool(np.any(offsets % 1)), (), None)
+    if isinstance(warp, Flip):
+        idx = tuple(slice(None, None, -1) if ax in warp.axes else slice(None) for ax in (0, 1))
+        phi = snap(extra - offsets) if 1 in warp.axes else offsets
+        return _Plan(np.ascontiguousarray(view.mask[idx]), [split(p) for p in phi],
+                     bool(np.any(phi % 1)), idx, None)
+    return _Plan(view.mask, [split(p) for p in offsets], bool(np.any(offsets % 1)), (), warp)
+
+
+def standard_cassi(mask, step, n_bands: int) -> CassiOperator:
+    r"""The standard single-view CASSI (MST / TSA-Net convention) as a one-view CassiOperator.
+
+    Band :math:`l` (0-based) is shifted right by :math:`\mathrm{step}\cdot l` pixels:
+
+    .. math:: g[y, x] = \sum_l M[y, x - s l]\, f_l[y, x - s l],
+
+    so ``ishape = (L, H, W)`` and ``oshape = (1, H, W + step·(L−1))``.
+
+    Parameters
+    ----------
+    mask : (H, W) array_like
+    step : float
+        Pixels per band (2 for the 28-band benchmark); sub-pixel or negative allowed.
+    n_bands : int
+    """
+    n = _n_bands(n_bands)
+    try:
+        s = float(step)
+    except (TypeError, ValueError):
+        raise InputError(f"step must be a number, got {step!r}") from None
+    if not np.isfinite(s):
+        raise InputError(f"step must be finite, got {step!r}")
+    m = as_mask(mask)
+    return CassiOperator([View(m, s * np.arange(n, dtype=np.float64))], (n,) + m.shape)
+
+
+def kaleidoscope_cassi(masks, offsets, n_views: int, inversion: bool = True,
+                       warps=None, cube_shape=None) -> CassiOperator:
+    r"""The paper's kaleidoscopic CASSI with ``n_views`` of the 3×3 views.
+
+    Views are taken in the order centre, left, right, top, bottom, top-left, top-right,
+    bottom-left, bottom-right (ids 0..8).  The sensor disperses every view the same way
+    (``offsets``); a mirror view sees the scene flipped, :math:`W_k` = ``Flip(1)`` for
+    left/right, ``Flip(0)`` for top/bottom, ``Flip((0, 1))`` for corners.  Expressed in centre
+    coordinates a horizontal flip reverses the dispersion, so left/right (and corner) views
+    disperse the other way after registration: the paper's *dispersion inversion* (Fig. 3b, 8d).
+
+    Parameters
+    ----------
+    masks : (K, Hv, Wv) or (Hv, Wv) array_like
+        Per-view masks in view coordinates, K >= n_views (the first n_views are used), or one
+        mask shared by all views.
+    offsets : (L,) or (K, L) array_like
+        Dispersion shifts on the sensor in pixels, one row shared by all views or one per view.
+    n_views : int
+        1..9.
+    inversion : bool
+        ``False`` drops the flips (every :math:`W_k` is the identity): the same views and masks
+        without dispersion inversion (Fig. 8c).
+    warps : sequence of (Warp or None), optional
+        Calibrated maps for the first n_views views, replacing the ideal ones (a ``None``
+        entry keeps the ideal map of that view).
+    cube_shape : (L, H, W), optional
+        Passed to :class:`CassiOperator` (needed when calibrated warps change the size).
+    """
+    try:
+        k = int(n_views)
+    except (TypeError, ValueError):
+        raise InputError(f"n_views must be an integer, got {n_views!r}") from None
+    if not 1 <= k <= 9 or k != n_views:
+        raise InputError(f"n_views must be an integer in 1..9, got {n_views!r}")
+    m = np.asarray(masks)
+    if m.ndim == 2:
+        mlist = [as_mask(m)] * k
+    elif m.ndim == 3:
+        if m.shape[0] < k:
+            raise InputError(f"masks has {m.shape[0]} views, need at least n_views={k}")
+        mlist = [as_mask(m[i], name=f"masks[{i}]") for i in range(k)]
+    else:
+        raise InputError(f"masks must be (K, Hv, Wv) or (Hv, Wv), got shape {m.shape}")
+    try:
+        phi = np.asarray(offsets, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError("offsets must be numbers") from None
+    if phi.ndim == 1:
+        rows = [phi] * k
+    elif phi.ndim == 2:
+        if phi.shape[0] < k:
+            raise InputError(f"offsets has {phi.shape[0]} rows, need at least n_views={k}")
+        rows = [phi[i] for i in range(k)]
+    else:
+        raise InputError(f"offsets must be (L,) or (K, L), got shape {phi.shape}")
+    if warps is not None:
+        warps = list(warps)
+        if len(warps) < k:
+            raise InputError(f"warps has {len(warps)} entries, need at least n_views={k}")
+    views = []
+    for i in range(k):
+        w = warps[i] if warps is not None else None
+        if w is None:
+            axes = KALEIDOSCOPE_FLIPS[i] if inversion else ()
+            w = Flip(axes) if axes else Identity()
+        views.append(View(mlist[i], as_offsets(rows[i], name=f"offsets of view {i}"), w))
+    return CassiOperator(views, cube_shape)
+
+
+def _n_bands(n_bands) -> int:
+    try:
+        n = int(n_bands)
+    except (TypeError, ValueError):
+        raise InputError(f"n_bands must be an integer, got {n_bands!r}") from None
+    if n < 1 or n != n_bands:
+        raise InputError(f"n_bands must be a positive integer, got {n_bands!r}")
+    return n
+
+
+def _cube_shape(cube_shape, n_bands, vshape, views) -> tuple[int, int, int]:
+    if cube_shape is None:
+        for v in views:
+            if v.warp.in_shape is not None:
+                return (n_bands,) + tuple(v.warp.in_shape)
+        return (n_bands,) + tuple(vshape)
+    try:
+        cs = tuple(int(s) for s in cube_shape)
+    except (TypeError, ValueError):
+        raise InputError(f"cube_shape must be (L, H, W), got {cube_shape!r}") from None
+    if len(cs) != 3 or min(cs) < 1:
+        raise InputError(f"cube_shape must be three positive ints (L, H, W), got {cube_shape!r}")
+    if cs[0] != n_bands:
+        raise InputError(f"cube_shape {cs} is band-major (L, H, W) but the views have "
+                         f"{n_bands} offsets (bands)")
+    return cs

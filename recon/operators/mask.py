@@ -1,0 +1,65 @@
+r"""Coded-aperture modulation: every band multiplied by the same mask, :math:`y_l = M \odot x_l`.
+
+The operator is diagonal, so it is self-adjoint and its row norms are :math:`M^2`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from recon.errors import InputError
+from recon.operators.base import LinearOperator
+from recon.operators.dispersion import work_dtype
+
+
+def as_mask(mask, shape: tuple[int, ...] | None = None, name: str = "mask", ndim: int = 2) -> np.ndarray:
+    """Validate a finite float mask (C-contiguous float32) of ``ndim`` dimensions.
+
+    Raises
+    ------
+    InputError
+        Wrong number of dimensions, wrong shape, empty, or non-finite values.
+    """
+    try:
+        m = np.ascontiguousarray(mask, dtype=np.float32)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{name} must be a numeric array: {exc}") from None
+    if m.ndim != ndim:
+        raise InputError(f"{name} must be {ndim}-D, got shape {m.shape}")
+    if m.size == 0:
+        raise InputError(f"{name} is empty (shape {m.shape})")
+    if shape is not None and m.shape != tuple(shape):
+        raise InputError(f"{name} has shape {m.shape}, expected {tuple(shape)}")
+    if not np.all(np.isfinite(m)):
+        raise InputError(f"{name} contains non-finite values")
+    return m
+
+
+class MaskModulation(LinearOperator):
+    r"""Multiply every band of a band-major cube by a mask: :math:`(L,H,W)\to(L,H,W)`.
+
+    .. math:: (Mx)_{l,y,x} = M_{y,x}\, x_{l,y,x}
+
+    Parameters
+    ----------
+    mask : (H, W) array_like
+        Transmission, finite (values in [0, 1] for a physical mask).
+    n_bands : int
+    """
+
+    def __init__(self, mask, n_bands: int):
+        self.mask = as_mask(mask)
+        n_bands = int(n_bands)
+        if n_bands < 1:
+            raise InputError(f"n_bands must be >= 1, got {n_bands}")
+        shape = (n_bands,) + self.mask.shape
+        super().__init__(shape, shape)
+
+    def _forward(self, x):
+        return np.multiply(x.astype(work_dtype(x), copy=False), self.mask)
+
+    _adjoint = _forward
+
+    def row_norms_sq(self):
+        m2 = self.mask.astype(np.float64) ** 2
+        return np.broadcast_to(m2, self.oshape).copy()

@@ -1,0 +1,376 @@
+r"""Spatial total variation of band-major cubes and its proximal map.
+
+A cube :math:`f` has the working layout ``(L, H, W)``: every band is a contiguous image.  The
+total variation is spatial only and summed over bands (paper Eq. 7; no spectral smoothing).  With
+forward differences and a Neumann boundary (the difference past the last row or column is zero),
+
+.. math::
+
+    (\nabla f)_{l,i,j} = \bigl(f_{l,i+1,j}-f_{l,i,j},\; f_{l,i,j+1}-f_{l,i,j}\bigr),
+
+the isotropic and the anisotropic variants are
+
+.. math::
+
+    \mathrm{TV}_\mathrm{iso}(f) = \sum_{l,i,j} \|(\nabla f)_{l,i,j}\|_2, \qquad
+    \mathrm{TV}_\mathrm{aniso}(f) = \sum_{l,i,j} \|(\nabla f)_{l,i,j}\|_1 .
+
+The proximal map :math:`\mathrm{prox}_{\lambda\mathrm{TV}}(v)=\arg\min_x \tfrac12\|x-v\|^2+
+\lambda\,\mathrm{TV}(x)` is computed on the dual (Chambolle 2004): with a dual field
+:math:`p` of shape ``(2, L, H, W)`` in the unit ball (pointwise :math:`\|p\|_2\le 1` for the
+isotropic norm, :math:`\|p\|_\infty\le 1` for the anisotropic one),
+
+.. math::
+
+    x = v - \lambda\,\mathrm{div}\,p, \qquad \mathrm{div} = -\nabla^\top,
+
+and the dual iterates with step :math:`\theta = 1/4`:
+
+- isotropic (Chambolle's semi-implicit step)
+  :math:`p \leftarrow \dfrac{p - (\theta/\lambda)\nabla x}{1 + (\theta/\lambda)\|\nabla x\|_2}`,
+- anisotropic (Chambolle 2005 projected gradient)
+  :math:`p \leftarrow \Pi_{[-1,1]}\bigl(p - (\theta/\lambda)\nabla x\bigr)`.
+
+Every band is independent; all bands are processed at once by whole-array NumPy operations.  The
+dual can be kept between calls (:class:`TVProx`, or the ``dual=`` argument of :func:`prox_tv`):
+inside an outer solver the argument :math:`v` changes little from one iteration to the next, so a
+warm-started dual needs only one or two inner iterations.
+
+The isotropic iteration is the one of :func:`skimage.restoration.denoise_tv_chambolle`
+(``weight`` = :math:`\lambda`), so both give the same result; the tests check this.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+from recon.errors import InputError
+
+__all__ = ["gradient", "divergence", "tv_norm", "tv_norm_per_band", "prox_tv", "TVProx"]
+
+# Dual step.  1/4 is the largest step for which the projected-gradient form is proven to
+# converge in 2-D (||div||^2 <= 8, step < 2/8); Chambolle's semi-implicit form is used at the
+# same step by skimage and converges in practice.
+_STEP = 0.25
+
+
+def _check_cube(x: np.ndarray, name: str = "x") -> np.ndarray:
+    x = np.asarray(x)
+    if x.ndim != 3:
+        raise InputError(f"{name} must be a band-major (L, H, W) cube, got shape {x.shape}")
+    if not np.issubdtype(x.dtype, np.floating):
+        x = x.astype(np.float32)
+    return x
+
+
+def gradient(x: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    r"""Spatial forward differences of every band, Neumann boundary.
+
+    Parameters
+    ----------
+    x : ndarray, shape (L, H, W)
+    out : ndarray, shape (2, L, H, W), optional
+        Written in place; its last row (component 0) and last column (component 1) are set to 0.
+
+    Returns
+    -------
+    ndarray, shape (2, L, H, W)
+        ``out[0]`` = :math:`f_{i+1,j}-f_{i,j}` (vertical), ``out[1]`` = :math:`f_{i,j+1}-f_{i,j}`.
+    """
+    x = _check_cube(x)
+    if out is None:
+        out = np.empty((2,) + x.shape, dtype=x.dtype)
+    np.subtract(x[:, 1:, :], x[:, :-1, :], out=out[0, :, :-1, :])
+    out[0, :, -1, :] = 0
+    np.subtract(x[:, :, 1:], x[:, :, :-1], out=out[1, :, :, :-1])
+    out[1, :, :, -1] = 0
+    return out
+
+
+def divergence(p: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    r"""Discrete divergence, the negative adjoint of :func:`gradient`: :math:`\mathrm{div}=-\nabla^\top`.
+
+    Parameters
+    ----------
+    p : ndarray, shape (2, L, H, W)
+    out : ndarray, shape (L, H, W), optional
+
+    Returns
+    -------
+    ndarray, shape (L, H, W)
+        :math:`(\mathrm{div}\,p)_{i,j} = p^0_{i,j}-p^0_{i-1,j} + p^1_{i,j}-p^1_{i,j-1}`, with
+        :math:`p^0_{-1,j}=p^0_{H-1,j}=0` and :math:`p^1_{i,-1}=p^1_{i,W-1}=0`.
+    """
+    p = np.asarray(p)
+    if p.ndim != 4 or p.shape[0] != 2:
+        raise InputError(f"dual field must have shape (2, L, H, W), got {p.shape}")
+    if out is None:
+        out = np.empty(p.shape[1:], dtype=p.dtype)
+    py, px = p[0], p[1]
+    # Components past the Neumann boundary are zero by definition of the gradient, whatever the
+    # array holds there, so they are left out explicitly.
+    out[:, :-1, :] = py[:, :-1, :]
+    out[:, -1, :] = 0
+    out[:, 1:, :] -= py[:, :-1, :]
+    out[:, :, :-1] += px[:, :, :-1]
+    out[:, :, 1:] -= px[:, :, :-1]
+    return out
+
+
+def tv_norm_per_band(x: np.ndarray, isotropic: bool = True) -> np.ndarray:
+    r"""Total variation of every band (paper Eq. 7 for ``isotropic=False``).
+
+    Parameters
+    ----------
+    x : ndarray, shape (L, H, W)
+    isotropic : bool
+        :math:`\sum\|\nabla x\|_2` if True, :math:`\sum\|\nabla x\|_1` if False.
+
+    Returns
+    -------
+    ndarray, shape (L,), float64
+    """
+    x = _check_cube(x)
+    dy = x[:, 1:, :] - x[:, :-1, :]
+    dx = x[:, :, 1:] - x[:, :, :-1]
+    acc = np.float64
+    if isotropic:
+        # Pad to a common grid: the missing differences are zero (Neumann boundary).
+        sq = np.zeros(x.shape, dtype=x.dtype)
+        sq[:, :-1, :] = dy * dy
+        sq[:, :, :-1] += dx * dx
+        np.sqrt(sq, out=sq)
+        return sq.sum(axis=(1, 2), dtype=acc)
+    return (np.abs(dy).sum(axis=(1, 2), dtype=acc) + np.abs(dx).sum(axis=(1, 2), dtype=acc))
+
+
+def tv_norm(x: np.ndarray, isotropic: bool = True) -> float:
+    r"""Total variation of a band-major cube, summed over bands: :math:`\sum_l \mathrm{TV}(x_l)`.
+
+    See :func:`tv_norm_per_band`.
+    """
+    return float(tv_norm_per_band(x, isotropic).sum())
+
+
+def _default_threads() -> int:
+    return max(1, min(4, os.cpu_count() or 1))
+
+
+_POOL: ThreadPoolExecutor | None = None
+_POOL_SIZE = 0
+_POOL_LOCK = threading.Lock()
+
+
+def _pool(n: int) -> ThreadPoolExecutor:
+    """A process-wide thread pool (NumPy releases the GIL inside large ufuncs)."""
+    global _POOL, _POOL_SIZE
+    with _POOL_LOCK:
+        if _POOL is None or _POOL_SIZE < n:
+            if _POOL is not None:
+                _POOL.shutdown(wait=False)
+            _POOL = ThreadPoolExecutor(max_workers=n, thread_name_prefix="recon-tv")
+            _POOL_SIZE = n
+        return _POOL
+
+
+# Bands are processed in chunks of about this many bytes per array, so that the ~7 arrays a
+# chunk touches stay in a core's cache across the dozen passes of one dual iteration (measured:
+# 30 % faster than whole-cube passes at 256x256x28, before threading).
+_CHUNK_BYTES = 1 << 19
+
+
+class TVProx:
+    r"""Proximal map of :math:`\lambda\,\mathrm{TV}` with a persistent (warm-startable) dual.
+
+    Holds the dual field and all work arrays, so repeated calls allocate nothing.  Bands are
+    independent, so they are processed in cache-sized chunks, spread over a thread pool.
+
+    Parameters
+    ----------
+    shape : tuple of int
+        ``(L, H, W)``.
+    dtype : numpy dtype
+        float32 (default) or float64.
+    isotropic : bool
+        Isotropic (default) or anisotropic TV.
+    threads : int, optional
+        Worker threads over band chunks (default: the number of CPUs, at most 4; 1 = serial).
+
+    Attributes
+    ----------
+    dual : ndarray, shape (2, L, H, W)
+        The current dual field :math:`p` (in the unit ball).  Zero after construction or
+        :meth:`reset`.
+
+    Examples
+    --------
+    >>> prox = TVProx(v.shape)
+    >>> x = prox(v, 0.1, n_iter=10)             # cold start
+    >>> x = prox(v2, 0.1, n_iter=2, warm=True)   # reuses the dual of the previous call
+    """
+
+    def __init__(self, shape, dtype=np.float32, isotropic: bool = True,
+                 threads: int | None = None):
+        shape = tuple(int(s) for s in shape)
+        if len(shape) != 3 or min(shape) < 1:
+            raise InputError(f"TVProx shape must be (L, H, W), got {shape}")
+        self.shape = shape
+        self.dtype = np.dtype(dtype)
+        if self.dtype.kind != "f":
+            raise InputError(f"TVProx dtype must be floating, got {self.dtype}")
+        self.isotropic = bool(isotropic)
+        self.threads = _default_threads() if threads is None else max(1, int(threads))
+        self.dual = np.zeros((2,) + shape, dtype=self.dtype)
+        self._g = np.zeros((2,) + shape, dtype=self.dtype)
+        self._y = np.empty(shape, dtype=self.dtype)
+        self._n = np.empty(shape, dtype=self.dtype)
+        self._sv = np.empty(shape, dtype=self.dtype)
+        n_bands, band_bytes = shape[0], shape[1] * shape[2] * self.dtype.itemsize
+        per_chunk = max(1, _CHUNK_BYTES // band_bytes)
+        n_chunks = max(-(-n_bands // per_chunk), min(self.threads, n_bands))
+        edges = np.linspace(0, n_bands, n_chunks + 1).round().astype(int)
+        self._chunks = [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+
+    def reset(self) -> None:
+        """Set the dual to zero (the next call is a cold start)."""
+        self.dual.fill(0)
+
+    def __call__(self, v: np.ndarray, weight: float, n_iter: int = 10, warm: bool = True,
+                 out: np.ndarray | None = None) -> np.ndarray:
+        r"""Return :math:`\mathrm{prox}_{\lambda\mathrm{TV}}(v)` after ``n_iter`` dual iterations.
+
+        Parameters
+        ----------
+        v : ndarray, shape (L, H, W)
+        weight : float
+            :math:`\lambda \ge 0`.  ``0`` returns ``v`` unchanged (copied into ``out``).
+        n_iter : int
+            Dual iterations (``>= 0``; ``0`` just evaluates :math:`v-\lambda\,\mathrm{div}\,p`
+            for the current dual).
+        warm : bool
+            Start from the stored dual (True) or from zero (False).
+        out : ndarray, shape (L, H, W), optional
+            Where to write the result; may be ``v`` itself.
+
+        Returns
+        -------
+        ndarray, shape (L, H, W)
+            :math:`x = v - \lambda\,\mathrm{div}\,p` for the final dual :math:`p`.
+        """
+        v = np.asarray(v)
+        if v.shape != self.shape:
+            raise InputError(f"TVProx: input shape {v.shape} != {self.shape}")
+        weight = float(weight)
+        if not np.isfinite(weight) or weight < 0:
+            raise InputError(f"TV weight must be finite and >= 0, got {weight}")
+        n_iter = int(n_iter)
+        if n_iter < 0:
+            raise InputError(f"n_iter must be >= 0, got {n_iter}")
+        if out is None:
+            out = np.empty(self.shape, dtype=self.dtype)
+        if weight == 0.0:
+            np.copyto(out, v)
+            return out
+        if not warm:
+            self.reset()
+        if v.dtype != self.dtype:
+            v = v.astype(self.dtype)
+        if len(self._chunks) == 1 or self.threads == 1:
+            for sl in self._chunks:
+                self._run(sl, v, weight, n_iter, out)
+        else:
+            jobs = [_pool(self.threads).submit(self._run, sl, v, weight, n_iter, out)
+                    for sl in self._chunks]
+            for job in jobs:
+                job.result()
+        return out
+
+    def _run(self, sl: slice, v, weight, n_iter, out) -> None:
+        """All dual iterations for the bands ``sl`` (bands are independent)."""
+        p, g, y, n, sv = (self.dual[:, sl], self._g[:, sl], self._y[sl], self._n[sl],
+                          self._sv[sl])
+        v, out = v[sl], out[sl]
+        py, px = p[0], p[1]
+        # The dual components past the Neumann boundary must be zero (the gradient is zero
+        # there, so the iteration keeps them at zero once they are).
+        py[:, -1, :] = 0
+        px[:, :, -1] = 0
+        s = _STEP / weight
+        if n_iter:
+            # Iterate on y = s * x = s*v - step * div p, so that grad y = s * grad x is the
+            # dual step itself: no separate scaling of the gradient.
+            np.multiply(v, s, out=sv)
+        for _ in range(n_iter):
+            _primal(p, sv, _STEP, y)
+            np.subtract(y[:, 1:, :], y[:, :-1, :], out=g[0, :, :-1, :])
+            np.subtract(y[:, :, 1:], y[:, :, :-1], out=g[1, :, :, :-1])
+            p -= g
+            if self.isotropic:
+                # (p - g) / (1 + |g|); the sum of squares through einsum needs no temporary.
+                np.einsum("i...,i...->...", g, g, out=n)
+                np.sqrt(n, out=n)
+                n += 1
+                np.divide(py, n, out=py)
+                np.divide(px, n, out=px)
+            else:
+                np.minimum(p, 1, out=p)
+                np.maximum(p, -1, out=p)
+        _primal(p, v, weight, y)
+        np.copyto(out, y)
+
+
+def _primal(p, v, coef, out):
+    r"""``out = v - coef * div p`` (``out`` must not alias ``v``; boundary parts of p are 0)."""
+    py, px = p[0], p[1]
+    np.add(py, px, out=out)
+    out[:, 1:, :] -= py[:, :-1, :]
+    out[:, :, 1:] -= px[:, :, :-1]
+    out *= -coef
+    out += v
+    return out
+
+
+def prox_tv(v: np.ndarray, weight: float, n_iter: int = 10, isotropic: bool = True,
+            dual: np.ndarray | None = None, out: np.ndarray | None = None,
+            threads: int | None = None) -> np.ndarray:
+    r"""Proximal map of :math:`\lambda\,\mathrm{TV}` (per band, spatial), by Chambolle's dual method.
+
+    .. math::
+
+        \mathrm{prox}_{\lambda\mathrm{TV}}(v) = \arg\min_x \tfrac12\|x-v\|_2^2
+        + \lambda \sum_l \mathrm{TV}(x_l)
+
+    Parameters
+    ----------
+    v : ndarray, shape (L, H, W)
+        Band-major cube (float32 or float64; other types are converted to float32).
+    weight : float
+        :math:`\lambda \ge 0` (the ``weight`` of :func:`skimage.restoration.denoise_tv_chambolle`).
+    n_iter : int
+        Dual iterations (10 is the paper's setting for a cold start).
+    isotropic : bool
+        Isotropic (default) or anisotropic (paper Eq. 7) TV.
+    dual : ndarray, shape (2, L, H, W), optional
+        Warm start: the dual field to start from; it is updated in place, so that the next
+        call can continue from it.  Zero (cold start) if omitted.
+    out : ndarray, shape (L, H, W), optional
+        Where to write the result; may be ``v``.
+    threads : int, optional
+        See :class:`TVProx`.
+
+    Returns
+    -------
+    ndarray, shape (L, H, W)
+    """
+    v = _check_cube(v, "v")
+    prox = TVProx(v.shape, v.dtype, isotropic, threads)
+    if dual is not None:
+        if dual.shape != prox.dual.shape or dual.dtype != v.dtype:
+            raise InputError(f"dual must be {prox.dual.shape} {v.dtype}, got "
+                             f"{dual.shape} {dual.dtype}")
+        prox.dual = dual
+    return prox(v, weight, n_iter, warm=True, out=out)

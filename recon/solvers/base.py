@@ -1,0 +1,216 @@
+r"""What every solver shares: the result record, the callback protocol, input checks, stopping.
+
+Every solver minimises (or, for GAP-TV, approximately minimises)
+
+.. math::
+
+    \min_f \; \tfrac12 \|g - Hf\|_2^2 + \tau\, \mathrm{TV}(f)
+
+for a :class:`~recon.operators.LinearOperator` :math:`H` with ``ishape`` ``(L, H, W)`` (the
+band-major cube) and any ``oshape`` (``(K, Hv, Wm)`` for CASSI, any number of views).  The loop
+runs in float32, or in float64 when the measurement is float64 (for precision checks).
+
+Stopping: after ``iters`` iterations, or earlier when ``tol`` is given and the relative change
+:math:`\|f_{k}-f_{k-1}\|_2 / \|f_{k-1}\|_2` falls below it (``converged=True``), or when the
+callback returns ``True``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from recon.errors import InputError
+from recon.operators.base import LinearOperator
+from recon.prox.tv import tv_norm
+
+__all__ = ["SolverResult", "Callback", "IterationLoop", "check_problem", "objective",
+           "operator_norm_sq"]
+
+
+@dataclass
+class SolverResult:
+    """The outcome of a solver run.
+
+    Attributes
+    ----------
+    x : ndarray, shape (L, H, W)
+        The reconstruction (band-major, the dtype of the loop).
+    iterations : int
+        Outer iterations done.
+    objective : list of float
+        :math:`\\tfrac12\\|g-Hf_k\\|^2+\\tau\\mathrm{TV}(f_k)` after every iteration, when it was
+        computed (TwIST always; other solvers with ``objective=True``); empty otherwise.
+    seconds : float
+        Wall time of the solve (set-up included, callback time excluded).
+    converged : bool
+        True when the ``tol`` test stopped the loop.
+    info : dict
+        Solver-specific extras (step sizes, counts of rejected steps, ...).
+    """
+
+    x: np.ndarray
+    iterations: int
+    objective: list[float] = field(default_factory=list)
+    seconds: float = 0.0
+    converged: bool = False
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+class Callback(Protocol):
+    """Called once per outer iteration, after the iterate is updated.
+
+    Parameters
+    ----------
+    iteration : int
+        1-based iteration number.
+    x : ndarray, shape (L, H, W)
+        The current iterate.  Read-only by contract: the solver keeps using this buffer.
+    info : dict
+        At least ``"rel_change"`` (float, relative change of the iterate) and ``"seconds"``
+        (time since the start), and ``"objective"`` (float or None).
+
+    Returns
+    -------
+    bool or None
+        ``True`` stops the solver after this iteration.
+    """
+
+    def __call__(self, iteration: int, x: np.ndarray, info: dict) -> bool | None: ...
+
+
+def check_problem(op: LinearOperator, g, x0, iters, tau, tol):
+    """Validate a problem and return ``(g, x0, dtype)`` in the working precision.
+
+    Raises
+    ------
+    InputError
+        For every bad input (shape, dtype, non-finite values, bad parameters).
+    """
+    if not isinstance(op, LinearOperator):
+        raise InputError(f"op must be a recon LinearOperator, got {type(op).__name__}")
+    if len(op.ishape) != 3:
+        raise InputError(f"solvers need an operator on (L, H, W) cubes, got ishape {op.ishape}")
+    g = np.asarray(g)
+    if g.shape != op.oshape:
+        raise InputError(f"measurement shape {g.shape} does not match the operator's "
+                         f"{op.oshape}")
+    if not (np.issubdtype(g.dtype, np.floating) or np.issubdtype(g.dtype, np.integer)):
+        raise InputError(f"measurement must be real numbers, got dtype {g.dtype}")
+    dtype = np.dtype(np.float64) if g.dtype == np.float64 else np.dtype(np.float32)
+    g = np.ascontiguousarray(g, dtype=dtype)
+    if not np.all(np.isfinite(g)):
+        raise InputError("measurement contains NaN or infinite values")
+    if x0 is not None:
+        x0 = np.asarray(x0)
+        if x0.shape != op.ishape:
+            raise InputError(f"x0 shape {x0.shape} does not match the operator's {op.ishape}")
+        x0 = np.array(x0, dtype=dtype, order="C", copy=True)
+        if not np.all(np.isfinite(x0)):
+            raise InputError("x0 contains NaN or infinite values")
+    if isinstance(iters, bool) or not isinstance(iters, (int, np.integer)) or iters < 1:
+        raise InputError(f"iters must be an integer >= 1, got {iters!r}")
+    tau = float(tau)
+    if not math.isfinite(tau) or tau < 0:
+        raise InputError(f"tau must be finite and >= 0, got {tau}")
+    if tol is not None:
+        tol = float(tol)
+        if not math.isfinite(tol) or tol <= 0:
+            raise InputError(f"tol must be > 0, got {tol}")
+    return g, x0, dtype
+
+
+def data_misfit(op: LinearOperator, g: np.ndarray, x: np.ndarray) -> tuple[float, np.ndarray]:
+    r"""Return :math:`\tfrac12\|g-Hx\|^2` and the residual :math:`g-Hx`."""
+    r = op.forward(x)
+    np.subtract(g, r, out=r)
+    return 0.5 * float(np.vdot(r, r)), r
+
+
+def objective(op: LinearOperator, g: np.ndarray, x: np.ndarray, tau: float,
+              isotropic: bool = True) -> float:
+    r""":math:`\tfrac12\|g-Hx\|_2^2 + \tau\,\mathrm{TV}(x)` (one forward)."""
+    return data_misfit(op, g, x)[0] + float(tau) * tv_norm(x, isotropic)
+
+
+def operator_norm_sq(op: LinearOperator, n_iter: int = 15, dtype=np.float32,
+                     seed: int = 0) -> float:
+    r"""Estimate :math:`\|H\|_2^2`, the largest eigenvalue of :math:`H^\top H`, by power iteration.
+
+    A power iteration approaches the top eigenvalue from below; the estimate is multiplied by
+    1.02 so that a step :math:`1/\|H\|^2` stays on the safe side after ``n_iter`` iterations.
+    """
+    rng = np.random.default_rng(seed)
+    x = rng.standard_normal(op.ishape).astype(dtype)
+    x /= np.linalg.norm(x)
+    lam = 0.0
+    for _ in range(int(n_iter)):
+        y = op.adjoint(op.forward(x))
+        lam = float(np.linalg.norm(y))
+        if lam == 0.0:
+            return 0.0
+        x = (y / lam).astype(dtype, copy=False)
+    return 1.02 * lam
+
+
+class IterationLoop:
+    """Book-keeping of an outer loop: relative change, tolerance, callback, timing.
+
+    Parameters
+    ----------
+    tol : float or None
+    callback : Callback or None
+    """
+
+    def __init__(self, tol, callback):
+        self.tol = tol
+        self.callback = callback
+        self.t0 = time.perf_counter()
+        self.callback_seconds = 0.0
+        self.converged = False
+        self.iterations = 0
+
+    @property
+    def needs_change(self) -> bool:
+        """Whether the relative change must be measured (costs two passes over the cube)."""
+        return self.tol is not None or self.callback is not None
+
+    @staticmethod
+    def relative_change(x: np.ndarray, x_prev: np.ndarray, work: np.ndarray) -> float:
+        r""":math:`\|x-x_\mathrm{prev}\|/\|x_\mathrm{prev}\|` using ``work`` as scratch."""
+        den = float(np.sqrt(np.vdot(x_prev, x_prev)))
+        np.subtract(x, x_prev, out=work)  # work may alias x_prev: its norm is taken first
+        num = float(np.sqrt(np.vdot(work, work)))
+        return num / den if den > 0 else (0.0 if num == 0 else math.inf)
+
+    def step(self, it: int, x: np.ndarray, rel_change: float | None,
+             obj: float | None = None, **extra) -> bool:
+        """Record iteration ``it`` (1-based); return True when the loop must stop."""
+        self.iterations = it
+        stop = False
+        if self.tol is not None and rel_change is not None and rel_change < self.tol:
+            self.converged = True
+            stop = True
+        if self.callback is not None:
+            t = time.perf_counter()
+            info = {"objective": obj, "rel_change": rel_change,
+                    "seconds": t - self.t0 - self.callback_seconds, **extra}
+            if self.callback(it, x, info) is True:
+                stop = True
+            self.callback_seconds += time.perf_counter() - t
+        return stop
+
+    def seconds(self) -> float:
+        return time.perf_counter() - self.t0 - self.callback_seconds
+
+
+def safe_reciprocal(a: np.ndarray, dtype) -> np.ndarray:
+    """``1/a`` where ``a > 0``, else 0 (rows of H that see nothing carry no information)."""
+    a = np.asarray(a, dtype=np.float64)
+    out = np.zeros(a.shape, dtype=np.float64)
+    np.divide(1.0, a, out=out, where=a > 0)
+    return out.astype(dtype)

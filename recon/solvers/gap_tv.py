@@ -1,0 +1,119 @@
+r"""GAP-TV: generalized alternating projection with a total-variation denoiser (Yuan 2016).
+
+X. Yuan, "Generalized alternating projection based total variation minimization for
+compressive sensing", ICIP 2016.  With :math:`\Phi = \mathrm{diag}(HH^\top)` (the operator's
+``row_norms_sq()``), one iteration of the accelerated form is
+
+.. math::
+
+    y_{k}   &= y_{k-1} + (g - Hf_{k-1})                                   \\
+    \theta_k &= f_{k-1} + H^\top\!\bigl(\Phi^{-1}(y_k - Hf_{k-1})\bigr)   \\
+    f_k     &= \mathrm{prox}_{\lambda\mathrm{TV}}(\theta_k)
+
+(the plain form uses :math:`g` instead of :math:`y_k`).  For single-view CASSI
+:math:`HH^\top` is diagonal, so the :math:`\theta` step is the exact Euclidean projection on
+:math:`\{f: Hf = y_k\}`; with several views it is the usual diagonal approximation.
+
+Speed: the TV step is a Chambolle dual projection whose dual is carried over from one outer
+iteration to the next, so 1-2 inner iterations replace the 5 cold ones of the public code.
+:math:`Hf_k` is computed once per iteration and reused by the next one (and by the objective).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from recon.errors import InputError
+from recon.operators.base import LinearOperator
+from recon.prox.tv import TVProx, tv_norm
+from recon.solvers.base import IterationLoop, SolverResult, check_problem, safe_reciprocal
+
+__all__ = ["gap_tv"]
+
+
+def gap_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float = 0.1,
+           x0: np.ndarray | None = None, tol: float | None = None, callback=None,
+           tv_iters: int = 2, warm_dual: bool = True, accelerate: bool = True,
+           isotropic: bool = True, objective: bool = False,
+           threads: int | None = None) -> SolverResult:
+    r"""Reconstruct with GAP-TV.
+
+    Parameters
+    ----------
+    op : LinearOperator
+        ishape ``(L, H, W)``, any oshape; ``op.row_norms_sq()`` gives :math:`\Phi`.
+    g : ndarray, shape ``op.oshape``
+        The measurement (float64 keeps the loop in float64).
+    iters : int
+        Outer iterations.
+    tau : float
+        The TV-denoising weight :math:`\lambda` of every step (for data scaled to about [0, 1],
+        0.05-0.2).  GAP-TV does not minimise :math:`\frac12\|g-Hf\|^2+\tau\mathrm{TV}(f)`
+        exactly; the objective it reports uses the same ``tau``.
+    x0 : ndarray, shape (L, H, W), optional
+        Warm start; :math:`H^\top\Phi^{-1} g` (the minimum-norm solution when
+        :math:`HH^\top` is diagonal) if omitted.
+    tol : float, optional
+        Stop when the relative change of :math:`f` falls below it.
+    callback : Callback, optional
+    tv_iters : int
+        Chambolle iterations per outer iteration.
+    warm_dual : bool
+        Keep the TV dual between outer iterations (default).  ``False`` with ``tv_iters=5``
+        is the public GAP-TV.
+    accelerate : bool
+        The accelerated update (default) or the plain one.
+    isotropic : bool
+        Isotropic (default) or anisotropic TV.
+    objective : bool
+        Record :math:`\frac12\|g-Hf_k\|^2+\tau\mathrm{TV}(f_k)` every iteration (a TV norm per
+        iteration; the forward is reused).
+    threads : int, optional
+        Threads of the TV prox (:class:`~recon.prox.TVProx`).
+
+    Returns
+    -------
+    SolverResult
+    """
+    g, x0, dtype = check_problem(op, g, x0, iters, tau, tol)
+    if int(tv_iters) < 1:
+        raise InputError(f"tv_iters must be >= 1, got {tv_iters}")
+    loop = IterationLoop(tol, callback)
+    phi_inv = safe_reciprocal(op.row_norms_sq(), dtype)
+    if phi_inv.shape != op.oshape:
+        raise InputError(f"row_norms_sq() shape {phi_inv.shape} != oshape {op.oshape}")
+
+    f = x0 if x0 is not None else np.ascontiguousarray(op.adjoint(g * phi_inv), dtype=dtype)
+    prox = TVProx(op.ishape, dtype, isotropic, threads)
+    y = np.zeros_like(g)
+    r = np.empty_like(g)
+    f_prev = np.empty_like(f) if loop.needs_change else None
+    hf = op.forward(f)
+    history: list[float] = []
+
+    for it in range(1, iters + 1):
+        if f_prev is not None:
+            np.copyto(f_prev, f)
+        if accelerate:
+            y += g
+            y -= hf
+            np.subtract(y, hf, out=r)
+        else:
+            np.subtract(g, hf, out=r)
+        r *= phi_inv
+        f += op.adjoint(r).astype(dtype, copy=False)
+        prox(f, tau, tv_iters, warm=warm_dual, out=f)
+        hf = op.forward(f).astype(dtype, copy=False)
+        obj = None
+        if objective:
+            np.subtract(g, hf, out=r)
+            obj = 0.5 * float(np.vdot(r, r)) + tau * tv_norm(f, isotropic)
+            history.append(obj)
+        change = loop.relative_change(f, f_prev, f_prev) if f_prev is not None else None
+        if loop.step(it, f, change, obj):
+            break
+
+    return SolverResult(x=f, iterations=loop.iterations, objective=history,
+                        seconds=loop.seconds(), converged=loop.converged,
+                        info={"tv_iters": int(tv_iters), "accelerate": accelerate,
+                              "warm_dual": warm_dual})

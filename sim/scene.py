@@ -1,0 +1,122 @@
+"""Assemble the Mitsuba scene of the instrument from a :class:`sim.design.Design`.
+
+Light travels along +z and meets, in order (DESIGN.md §1, paper Fig. 2):
+
+=====================  =========================================================================
+z (mm)                 element
+=====================  =========================================================================
+0                      diffuser (:mod:`sim.diffuser`), the scene cube as an area emitter
+0 … L                  kaleidoscope, four Al mirrors (:mod:`sim.kaleidoscope`), if enabled
+a                      relay lens, f_r (:mod:`sim.lens`); a = L + gap (1/a + 1/b = 1/f_r)
+a + b                  chrome-on-quartz mask (:mod:`sim.mask`) in the relay's image plane
+a + b + f_c            collimating lens, f_c
+a + b + f_c + f_c/2    BK-7 prism at minimum deviation (:mod:`sim.prism`), folds the axis by δ
+… + f_c/2 along δ      imaging lens + sensor (:mod:`sim.camera`), pupil at the collimator's
+                       back focal plane (a telecentric 4f relay of the mask)
+=====================  =========================================================================
+
+The plain single-view CASSI (``design.kaleidoscope = False``) is the same scene without the
+mirrors and with the relay moved so the one view fills the 3×3 grid's area
+(:attr:`Design.object_distance_mm`). Mitsuba's dict keys may not contain dots; ours do not.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sim.variant import ensure_variant
+
+__all__ = ["SceneSpec", "build_scene"]
+
+
+@dataclass
+class SceneSpec:
+    """A scene dict plus what the renderers need to know about it."""
+
+    scene: dict
+    camera_position: np.ndarray
+    camera_direction: np.ndarray
+    texture: object
+    z: dict = field(default_factory=dict)
+
+    def camera(self, design, film=None, crop=None, seed=0, spp=1) -> dict:
+        """The sensor dict (:func:`sim.camera.camera_dict`) for this scene."""
+        from sim.camera import camera_dict
+
+        return camera_dict(design, self.camera_position, self.camera_direction, film=film,
+                           crop=crop, sampler_seed=seed, spp=spp)
+
+
+def build_scene(design, cube_lhw: np.ndarray | None = None, wavelengths=None, *,
+                lenses: str = "thin", mask_pattern: np.ndarray | None = None,
+                max_depth: int = 64) -> SceneSpec:
+    """The instrument as a Mitsuba scene dict (no sensor: renderers add one per band/view).
+
+    Parameters
+    ----------
+    design : sim.design.Design
+    cube_lhw : ndarray (L, H, W), optional
+        Band-major radiance cube on the diffuser; None for a dark diffuser (transport tracing).
+    wavelengths : array_like (L,), optional
+        The cube's band centres (nm).
+    lenses : {"thin", "real"}
+        Ideal thin-lens BSDFs (default, exact imaging) or real BK-7 singlet meshes for the relay
+        and collimator (chromatic and spherical aberration; the imaging lens stays ideal).
+    mask_pattern : ndarray of bool, optional
+        Override ``design.mask_pattern()`` (e.g. all open).
+    max_depth : int
+        Path tracer depth; every mirror bounce and lens/mask/prism crossing is one vertex.
+    """
+    mi = ensure_variant()
+    from sim import diffuser, kaleidoscope, lens, mask, prism
+
+    if lenses not in ("thin", "real"):
+        from recon.errors import InputError
+
+        raise InputError(f"lenses must be 'thin' or 'real', got {lenses!r}")
+    a, b = design.object_distance_mm, design.image_distance_mm
+    fr, fc = design.relay_focal_mm, design.collimator_focal_mm
+    z_relay, z_mask = a, a + b
+    z_col = z_mask + fc
+    z_prism = z_col + 0.5 * fc
+    N = design.imaging_f_number
+    pupil = design.imaging_focal_mm / N
+    half_sensor = 0.5 * np.hypot(design.sensor_width_px, design.sensor_height_px) \
+        * design.sensor_pixel_um * 1e-3
+    field_tan = half_sensor / design.imaging_focal_mm
+    # Beam footprint at the prism (pupil plus the field's spread over f_c/2), with margin.
+    footprint = pupil + 2.0 * 0.5 * fc * field_tan
+    grid_mask = design.grid_size * design.view_size_mask_mm
+
+    scene: dict = {
+        "type": "scene",
+        "integrator": {"type": "path", "max_depth": int(max_depth), "rr_depth": int(max_depth),
+                       "hide_emitters": False},
+    }
+    dshape, tex = diffuser.diffuser_shape(design, cube_lhw, wavelengths, z=0.0)
+    scene["diffuser"] = dshape
+    if design.kaleidoscope:
+        scene.update(kaleidoscope.mirror_shapes(design, z0=0.0))
+    # Relay: large enough not to vignette the 3×3 grid's cones (the tube exit is the stop).
+    d_relay = 2.0 * (0.5 * grid_mask + b / (2.0 * N)) + 0.5 * design.tube_width_mm + 10.0
+    d_col = grid_mask + fc / N + 2.0 * fc * field_tan + 10.0
+    if lenses == "thin":
+        scene["relay_lens"] = lens.lens_shape(fr, [0, 0, z_relay], d_relay)
+        scene["collimator_lens"] = lens.lens_shape(fc, [0, 0, z_col], d_col)
+    else:
+        scene["relay_lens"] = lens.real_lens_shape(fr, [0, 0, z_relay], d_relay)
+        scene["collimator_lens"] = lens.real_lens_shape(fc, [0, 0, z_col], d_col)
+    scene["mask"] = mask.mask_shape(design, z_mask, mask_pattern)
+    pmesh, exit_dir, exit_pt = prism.prism_shape(
+        design.prism_glass, design.prism_apex_deg, design.prism_center_nm,
+        [0.0, 0.0, z_prism], height_mm=3.0 * footprint + 10.0, depth_mm=3.0 * footprint + 10.0,
+        base_side=1.0,
+    )
+    scene["prism"] = pmesh
+    # The pupil sits at the collimator's back focal plane, measured along the folded axis.
+    cam_pos = np.array([0.0, 0.0, z_prism]) + exit_dir * (z_col + fc - z_prism)
+    return SceneSpec(scene=scene, camera_position=cam_pos, camera_direction=exit_dir,
+                     texture=tex,
+                     z={"relay": z_relay, "mask": z_mask, "collimator": z_col, "prism": z_prism})

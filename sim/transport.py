@@ -1,0 +1,361 @@
+"""The fast path: a transport cache of the optical system, and frames as sparse gathers.
+
+Every element between the diffuser and the sensor is specular (delta) and the system is linear
+in the scene radiance, so the per-band sensor image is
+
+.. math:: E_l(p) = \\frac{\\pi}{1 + 4N^2} \\cdot \\frac{1}{S} \\sum_{s=1}^{S}
+          \\tau_{s}\\; T_d\\, f_l\\big(t_s\\big),
+
+where pixel *p* shoots S camera samples (uniform over the pixel, the lens aperture and the
+band's wavelengths), sample *s* reaches diffuser texel :math:`t_s` with throughput
+:math:`\\tau_s` (mirror reflectances, mask and quartz, prism Fresnel losses; 0 if it is blocked),
+and :math:`f_l` is band *l* of the cube. Since :math:`(t_s, \\tau_s)` do not depend on the scene,
+we trace them once per band and keep, per band, the sparse matrix :math:`A_l` with
+:math:`A_l[p, t] = \\frac{\\pi T_d}{(1+4N^2) S}\\sum_{s: t_s = t} \\tau_s` (duplicates merged).
+A frame is then :math:`E_l = A_l f_l` for every band: a gather and a ``bincount``.
+
+The tracer here is independent of Mitsuba's path integrator (its own loop over
+``ray_intersect`` and ``BSDF.sample``), which is what makes the direct render
+(:mod:`sim.render`) a meaningful check of it. With the same sample count the two estimate the
+same expectation; they differ only by Monte Carlo noise.
+
+Cache files: ``<cache>/transport-<design hash>-<key>.npz`` (``np.savez_compressed``, written to a
+temporary file in the same folder and renamed; read with ``allow_pickle=False``), where the key
+hashes the cube shape, samples per pixel, band intervals, views and seed. The cache folder is
+``$KALEIDOSPEC_CACHE`` or ``~/.cache/kaleidospec``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from recon.errors import InputError
+
+__all__ = [
+    "Transport",
+    "cache_dir",
+    "band_intervals",
+    "sensor_pixels",
+    "trace_band",
+    "build_transport",
+    "load_or_build",
+    "render_cached",
+    "STATS",
+]
+
+#: Counters for tests and benchmarks: how many bands were traced / loaded from disk.
+STATS = {"traced_bands": 0, "loaded": 0, "built": 0}
+
+_FORMAT = 1
+
+
+def cache_dir() -> Path:
+    """``$KALEIDOSPEC_CACHE`` or ``~/.cache/kaleidospec`` (created on demand)."""
+    p = Path(os.environ.get("KALEIDOSPEC_CACHE") or Path.home() / ".cache" / "kaleidospec")
+    p.mkdir(parents=True, exist_ok=True)
+    return p
+
+
+def band_intervals(design, wavelengths=None, sampling: str = "box") -> np.ndarray:
+    """Wavelength interval (L, 2) sampled for each band.
+
+    ``box``: the whole band, between midpoints of neighbouring centres (what a sensor pixel
+    integrates; bands then carry their own dispersion blur). ``centre``: the band centre only
+    (a monochromatic image per band, the discrete forward model of DESIGN.md §2).
+    """
+    from sim.diffuser import band_edges
+
+    wl = design.wavelengths if wavelengths is None else np.asarray(wavelengths, np.float64)
+    if sampling == "centre":
+        return np.stack([wl, wl], axis=1)
+    if sampling != "box":
+        raise InputError(f"band sampling must be 'box' or 'centre', got {sampling!r}")
+    e = band_edges(wl, design)
+    lo = np.maximum(e[:-1], design.filter_min_nm)
+    hi = np.minimum(e[1:], design.filter_max_nm)
+    return np.stack([lo, hi], axis=1)
+
+
+def sensor_pixels(design, views=None, crop=None) -> np.ndarray:
+    """Flat sensor pixel indices (row·W + col) of the used views' rectangles (sorted, int64).
+
+    ``crop`` = (row0, col0, height, width) intersects them with a window (benchmarks).
+    """
+    H, W = design.sensor_height_px, design.sensor_width_px
+    keep = np.zeros((H, W), dtype=bool)
+    for v in (design.views if views is None else views):
+        r0, c0, h, w = design.view_rect(v)
+        keep[max(r0, 0):min(r0 + h, H), max(c0, 0):min(c0 + w, W)] = True
+    if crop is not None:
+        r0, c0, h, w = crop
+        win = np.zeros_like(keep)
+        win[max(r0, 0):r0 + h, max(c0, 0):c0 + w] = True
+        keep &= win
+    return np.flatnonzero(keep.ravel())
+
+
+@dataclass
+class Transport:
+    """Per-band sparse transport: for band l, ``pix[l]``, ``tex[l]``, ``w[l]`` (sorted by pixel)."""
+
+    design_hash: str
+    shape: tuple[int, int]          # cube (H, W) on the diffuser
+    sensor: tuple[int, int]         # (Hs, Ws)
+    wavelengths: np.ndarray         # band centres (L,)
+    intervals: np.ndarray           # (L, 2) sampled interval per band
+    spp: int
+    pix: list
+    tex: list
+    w: list
+    build_seconds: float = 0.0
+    path: Path | None = None
+
+    def apply(self, cube: np.ndarray, bands=None, out: np.ndarray | None = None) -> np.ndarray:
+        """Per-band irradiance (L, Hs, Ws) float32 of a cube (H, W, L) on this transport."""
+        H, W = self.shape
+        cube = np.asarray(cube, dtype=np.float32)
+        Hs, Ws = self.sensor
+        L = len(self.pix)
+        if out is None:
+            out = np.zeros((L, Hs, Ws), dtype=np.float32)
+        for l in range(L) if bands is None else bands:
+            if self.pix[l].size == 0:
+                continue
+            band = np.ascontiguousarray(cube[:, :, l]).ravel()
+            vals = band[self.tex[l]] * self.w[l]
+            out[l].ravel()[:] = np.bincount(self.pix[l], weights=vals,
+                                            minlength=Hs * Ws).astype(np.float32)
+        return out
+
+    def nbytes(self) -> int:
+        """In-memory size of the index and weight arrays."""
+        return int(sum(a.nbytes for a in self.pix + self.tex + self.w))
+
+
+def _trace_setup(design, shape):
+    from sim.scene import build_scene
+    from sim.variant import ensure_variant
+
+    mi = ensure_variant()
+    spec = build_scene(design, None, None)
+    scene = mi.load_dict(spec.scene)
+    sensor = mi.load_dict(spec.camera(design))
+    from sim.diffuser import cube_region
+
+    return mi, scene, sensor, cube_region(design, shape)
+
+
+def trace_band(design, shape, interval, spp: int, seed: int = 0, pixels=None,
+               max_depth: int = 24, batch: int = 1 << 21, _setup=None):
+    """Trace one band: every (pixel, sample) → (texel, throughput).
+
+    Parameters
+    ----------
+    design : sim.design.Design
+    shape : (H, W)
+        Cube resolution on the diffuser (sets the texel grid).
+    interval : (lo, hi)
+        Wavelengths (nm) sampled uniformly for this band (lo == hi: monochromatic).
+    spp : int
+        Samples per pixel (uniform over the pixel area and the lens aperture).
+    seed : int
+        Seeds the NumPy generator that draws every sample (the result is deterministic).
+    pixels : ndarray of int, optional
+        Flat sensor pixels to trace; the used views by default.
+
+    Returns
+    -------
+    pix, tex : ndarray int32
+        Pixel and texel of every (pixel, texel) pair that received light, sorted by pixel.
+    w : ndarray float32
+        Σ τ_s · T_d · π/(1+4N²) / spp over the samples of that pair.
+    """
+    import drjit as dr
+
+    from sim.camera import irradiance_factor
+    from sim.diffuser import texel_index
+
+    mi, scene, sensor, region = _setup if _setup is not None else _trace_setup(design, shape)
+    Hs, Ws = design.sensor_height_px, design.sensor_width_px
+    if pixels is None:
+        pixels = sensor_pixels(design)
+    pixels = np.asarray(pixels, dtype=np.int64)
+    rng = np.random.default_rng([int(seed), int(round(interval[0] * 1000)),
+                                 int(round(interval[1] * 1000))])
+    ntex = int(shape[0]) * int(shape[1])
+    scale = irradiance_factor(design) * design.diffuser_transmittance / spp
+    ctx = mi.BSDFContext()
+    keys_all, w_all = [], []
+    total = pixels.size * spp
+    for start in range(0, total, batch):
+        n = min(batch, total - start)
+        s_idx = np.arange(start, start + n, dtype=np.int64)
+        pix = pixels[s_idx // spp]
+        r = (pix // Ws).astype(np.float64)
+        c = (pix % Ws).astype(np.float64)
+        u = rng.random((5, n))
+        pos = mi.Point2f(((c + u[0]) / Ws).astype(np.float32), ((r + u[1]) / Hs).astype(np.float32))
+        ap = mi.Point2f(u[2].astype(np.float32), u[3].astype(np.float32))
+        lam = (interval[0] + (interval[1] - interval[0]) * u[4]).astype(np.float32)
+        ray, _ = sensor.sample_ray(0.0, 0.5, pos, ap)
+        lam_dr = mi.Float(lam)
+        ray.wavelengths = mi.Spectrum(lam_dr, lam_dr, lam_dr, lam_dr)
+        thr = mi.Spectrum(1.0)
+        active = mi.Bool(True)
+        tex = mi.UInt32(0)
+        got = mi.Bool(False)
+        for _ in range(max_depth):
+            si = scene.ray_intersect(ray, active)
+            active &= si.is_valid()
+            # The diffuser is the only surface at z = 0 facing +z; it emits on its front only.
+            at_d = active & (dr.abs(si.p.z) < 1e-3) & (ray.d.z < 0)
+            idx, inside = texel_index(si.p, region)
+            tex = dr.select(at_d, idx, tex)
+            got |= at_d & inside
+            active &= ~at_d
+            bsdf = si.bsdf(ray)
+            bs, wgt = bsdf.sample(ctx, si, 0.5, mi.Point2f(0.5, 0.5), active)
+            thr = dr.select(active, thr * wgt, thr)
+            active &= dr.any(wgt > 0)
+            ray = dr.select(active, si.spawn_ray(si.to_world(bs.wo)), ray)
+            # Hero-wavelength weights keep the four wavelengths' mean unbiased.
+            dr.eval(ray, thr, active, tex, got)
+            if not dr.any(active):
+                break
+        wmean = (thr[0] + thr[1] + thr[2] + thr[3]) * 0.25
+        wk = np.asarray(dr.select(got, wmean, 0.0), dtype=np.float32)
+        tk = np.asarray(tex, dtype=np.int64)
+        ok = wk > 0
+        keys_all.append(pix[ok] * ntex + tk[ok])
+        w_all.append(wk[ok])
+    keys = np.concatenate(keys_all) if keys_all else np.zeros(0, np.int64)
+    ws = np.concatenate(w_all) if w_all else np.zeros(0, np.float32)
+    uk, inv = np.unique(keys, return_inverse=True)
+    wsum = np.bincount(inv, weights=ws.astype(np.float64), minlength=uk.size) * scale
+    STATS["traced_bands"] += 1
+    return ((uk // ntex).astype(np.int32), (uk % ntex).astype(np.int32),
+            wsum.astype(np.float32))
+
+
+def _key(design, shape, intervals, spp, seed, pixels_desc) -> str:
+    blob = json.dumps({
+        "format": _FORMAT, "design": design.hash, "shape": [int(s) for s in shape],
+        "intervals": np.round(np.asarray(intervals, np.float64), 6).tolist(), "spp": int(spp),
+        "seed": int(seed), "pixels": pixels_desc,
+    }, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def build_transport(design, shape, wavelengths=None, *, spp: int = 4, seed: int = 0,
+                    sampling: str = "box", crop=None, progress: bool = False) -> Transport:
+    """Trace the optical system for every band inside the filter's pass band (not cached)."""
+    wl = design.wavelengths if wavelengths is None else np.asarray(wavelengths, np.float64)
+    iv = band_intervals(design, wl, sampling)
+    setup = _trace_setup(design, shape)
+    pixels = sensor_pixels(design, crop=crop)
+    t0 = time.perf_counter()
+    pix, tex, w = [], [], []
+    it = range(wl.size)
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(it, desc="transport", unit="band")
+    for l in it:
+        inside = (wl[l] >= design.filter_min_nm) and (wl[l] <= design.filter_max_nm)
+        if not inside or iv[l, 1] < iv[l, 0]:
+            pix.append(np.zeros(0, np.int32)), tex.append(np.zeros(0, np.int32))
+            w.append(np.zeros(0, np.float32))
+            continue
+        p, t, ww = trace_band(design, shape, iv[l], spp, seed=seed + 7919 * l, pixels=pixels,
+                              _setup=setup)
+        pix.append(p), tex.append(t), w.append(ww)
+    STATS["built"] += 1
+    return Transport(design.hash, (int(shape[0]), int(shape[1])),
+                     (design.sensor_height_px, design.sensor_width_px), wl, iv, int(spp),
+                     pix, tex, w, build_seconds=time.perf_counter() - t0)
+
+
+def _save(tr: Transport, path: Path) -> None:
+    from recon.io.atomic import atomic_path
+
+    arrays = {
+        "format": np.array(_FORMAT), "design_hash": np.array(tr.design_hash),
+        "shape": np.array(tr.shape, np.int64), "sensor": np.array(tr.sensor, np.int64),
+        "wavelengths": tr.wavelengths, "intervals": tr.intervals, "spp": np.array(tr.spp),
+        "build_seconds": np.array(tr.build_seconds),
+    }
+    for l in range(len(tr.pix)):
+        # Pixel indices are sorted: their differences are small and compress well.
+        arrays[f"dpix_{l}"] = np.diff(tr.pix[l], prepend=0).astype(np.int32)
+        arrays[f"tex_{l}"] = tr.tex[l]
+        arrays[f"w_{l}"] = tr.w[l]
+    with atomic_path(path) as tmp:
+        np.savez_compressed(tmp, **arrays)
+
+
+def _load(path: Path) -> Transport:
+    with np.load(path, allow_pickle=False) as z:
+        if int(z["format"]) != _FORMAT:
+            raise ValueError("old cache format")
+        L = int(z["wavelengths"].size)
+        pix = [np.cumsum(z[f"dpix_{l}"], dtype=np.int64).astype(np.int32) for l in range(L)]
+        return Transport(str(z["design_hash"]), tuple(int(v) for v in z["shape"]),
+                         tuple(int(v) for v in z["sensor"]), z["wavelengths"].copy(),
+                         z["intervals"].copy(), int(z["spp"]), pix,
+                         [z[f"tex_{l}"].copy() for l in range(L)],
+                         [z[f"w_{l}"].copy() for l in range(L)],
+                         build_seconds=float(z["build_seconds"]), path=path)
+
+
+_MEMO: dict[str, Transport] = {}
+
+
+def load_or_build(design, shape, wavelengths=None, *, spp: int = 4, seed: int = 0,
+                  sampling: str = "box", crop=None, progress: bool = False,
+                  use_disk: bool = True) -> Transport:
+    """The transport for this design/shape/bands: from memory, from the cache folder, or traced
+    (and then written to the cache folder atomically)."""
+    wl = design.wavelengths if wavelengths is None else np.asarray(wavelengths, np.float64)
+    iv = band_intervals(design, wl, sampling)
+    key = _key(design, shape, iv, spp, seed, [list(design.views), crop])
+    if key in _MEMO:
+        return _MEMO[key]
+    path = cache_dir() / f"transport-{design.hash}-{key}.npz"
+    tr = None
+    if use_disk and path.exists():
+        try:
+            tr = _load(path)
+            STATS["loaded"] += 1
+        except (OSError, ValueError, KeyError):
+            tr = None  # a damaged or outdated file is simply rebuilt
+    if tr is None:
+        tr = build_transport(design, shape, wl, spp=spp, seed=seed, sampling=sampling, crop=crop,
+                             progress=progress)
+        if use_disk:
+            _save(tr, path)
+            tr.path = path
+    _MEMO[key] = tr
+    return tr
+
+
+def render_cached(design, cube: np.ndarray, wavelengths, *, spp: int = 4, seed: int = 0,
+                  sampling: str = "box", progress: bool = False, crop=None) -> np.ndarray:
+    """Per-band sensor irradiance (L, Hs, Ws) float32 of ``cube`` (H, W, L) from the cache.
+
+    ``wavelengths`` are the cube's band centres; they must be bands of the design (bands
+    outside the filter's pass band give dark images). The first call for a design/cube shape
+    traces the optics (:func:`load_or_build`); later calls are gathers.
+    """
+    from sim.render import check_cube
+
+    cube, wl = check_cube(design, cube, wavelengths)
+    tr = load_or_build(design, cube.shape[:2], wl, spp=spp, seed=seed, sampling=sampling,
+                       crop=crop, progress=progress)
+    return tr.apply(cube)

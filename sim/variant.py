@@ -1,0 +1,91 @@
+"""Choose the Mitsuba 3 variant the simulator renders with.
+
+Every optical element after the diffuser is a delta (specular) interaction and the prism needs
+the wavelength of each path, so the simulator needs a *spectral* variant. ``llvm_ad_spectral``
+vectorises the Python plugins (lens, prism) with drjit's LLVM backend and is ~80× faster than
+``scalar_spectral``, which runs every Python plugin call once per ray. When the LLVM backend
+cannot start (no usable ``libLLVM``: drjit aborts with Debian's libLLVM-14/15 and needs ≥ 17,
+found automatically or through ``DRJIT_LIBLLVM_PATH``), we fall back to ``scalar_spectral`` with
+a warning rather than crash.
+
+Call :func:`ensure_variant` before building any Mitsuba object; it is idempotent and returns the
+``mitsuba`` module.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+
+__all__ = ["ensure_variant", "PREFERRED", "FALLBACK", "is_vectorized"]
+
+PREFERRED = "llvm_ad_spectral"
+FALLBACK = "scalar_spectral"
+
+_chosen: str | None = None
+
+
+def _try_set(mi, name: str) -> bool:
+    try:
+        if name not in mi.variants():
+            return False
+        mi.set_variant(name)
+        # Building a tiny array forces drjit to initialise the backend: this is where a missing
+        # or unusable libLLVM shows up, not in set_variant.
+        import drjit as dr
+
+        if name.startswith("llvm"):
+            x = dr.llvm.ad.Float([1.0, 2.0])
+            dr.eval(x * 2.0)
+        return True
+    except Exception as err:  # noqa: BLE001 - any failure means "not usable here"
+        warnings.warn(f"Mitsuba variant {name} is not usable ({err}); trying another", stacklevel=3)
+        return False
+
+
+def ensure_variant(preferred: str | None = None):
+    """Select a spectral Mitsuba variant once and return the ``mitsuba`` module.
+
+    Parameters
+    ----------
+    preferred : str, optional
+        Variant to try first; default ``$KALEIDOSPEC_MI_VARIANT`` or ``llvm_ad_spectral``.
+
+    Returns
+    -------
+    module
+        ``mitsuba`` with a spectral variant set.
+
+    Raises
+    ------
+    RuntimeError
+        If Mitsuba is installed without any spectral variant.
+    """
+    global _chosen
+    import mitsuba as mi
+
+    if _chosen is not None:
+        if mi.variant() != _chosen:
+            mi.set_variant(_chosen)
+        return mi
+    first = preferred or os.environ.get("KALEIDOSPEC_MI_VARIANT") or PREFERRED
+    for name in dict.fromkeys([first, PREFERRED, FALLBACK]):
+        if _try_set(mi, name):
+            if name != first:
+                warnings.warn(
+                    f"Mitsuba variant {first} unavailable; rendering with {name} "
+                    "(Python plugins run per ray, much slower)",
+                    stacklevel=2,
+                )
+            _chosen = name
+            return mi
+    raise RuntimeError(
+        f"no spectral Mitsuba variant available (have: {', '.join(mi.variants())}); "
+        "install mitsuba>=3.5 with llvm_ad_spectral or scalar_spectral"
+    )
+
+
+def is_vectorized() -> bool:
+    """True when the chosen variant is a JIT (vectorised) one."""
+    mi = ensure_variant()
+    return not mi.variant().startswith("scalar")

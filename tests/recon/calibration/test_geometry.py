@@ -1,0 +1,170 @@
+"""Homographies from a synthetic masked, flipped, warped checkerboard: corner error < 0.3 px."""
+
+import numpy as np
+import pytest
+
+from recon.calibration.geometry import (apply_homography, refine_homography, to_view_coordinates,
+                                        unmask, view_homographies)
+from recon.errors import InputError
+
+HV, WM = 130, 170                 # box size
+SQ = 13.0                         # checker square, px
+ORIGIN = (33.0, 24.0)             # board's top-left corner in centre-box coordinates (x, y)
+NX, NY = 8, 6                     # squares; inner corners (NX-1, NY-1)
+PATTERN = (NX - 1, NY - 1)
+IDS = (0, 1, 2, 3, 4, 5)
+
+
+def _checker(x, y):
+    """Board reflectance in centre coordinates: squares 0.1/1.0 on a white surround."""
+    u = (x - ORIGIN[0]) / SQ
+    v = (y - ORIGIN[1]) / SQ
+    inside = (u >= 0) & (u < NX) & (v >= 0) & (v < NY)
+    dark = (np.floor(u) + np.floor(v)) % 2 == 0
+    return np.where(inside & dark, 0.1, 1.0)
+
+
+def _flip_matrix(axes):
+    f = np.eye(3)
+    if 1 in axes:
+        f[0] = [-1.0, 0.0, WM - 1.0]
+    if 0 in axes:
+        f[1] = [0.0, -1.0, HV - 1.0]
+    return f
+
+
+FLIPS = {0: (), 1: (1,), 2: (1,), 3: (0,), 4: (0,), 5: (0, 1)}
+
+
+def _true_homographies(rng):
+    hs = [np.eye(3)]
+    for v in IDS[1:]:
+        a = np.deg2rad(rng.uniform(-1.5, 1.5))
+        s = rng.uniform(0.97, 1.03)
+        small = np.array([[s * np.cos(a), -s * np.sin(a), rng.uniform(-3, 3)],
+                          [s * np.sin(a), s * np.cos(a), rng.uniform(-3, 3)],
+                          [rng.uniform(-4e-5, 4e-5), rng.uniform(-4e-5, 4e-5), 1.0]])
+        # Distort about the box centre so the board stays inside.
+        c = np.array([[1, 0, WM / 2], [0, 1, HV / 2], [0, 0, 1.0]])
+        hs.append(c @ small @ np.linalg.inv(c) @ _flip_matrix(FLIPS[v]))
+    return np.array(hs)
+
+
+def _render(h, ss=4):
+    """View image of the board through centre→view homography h, area-averaged (ss² samples)."""
+    inv = np.linalg.inv(h)
+    off = (np.arange(ss) + 0.5) / ss - 0.5
+    yy, xx = np.mgrid[0:HV, 0:WM].astype(np.float64)
+    acc = np.zeros((HV, WM))
+    for dy in off:
+        for dx in off:
+            q = apply_homography(inv, np.stack([(xx + dx).ravel(), (yy + dy).ravel()], axis=1))
+            acc += _checker(q[:, 0], q[:, 1]).reshape(HV, WM)
+    return acc / ss ** 2
+
+
+def _mask(rng):
+    cells = rng.random((HV // 2 + 1, WM // 2 + 1)) < 0.5
+    return np.kron(cells, np.ones((2, 2)))[:HV, :WM]
+
+
+def _captures(rng, hs, noise=0.005):
+    gap = 10
+    boxes = np.array([(gap + i // 3 * (HV + gap), gap + i % 3 * (WM + gap), HV, WM)
+                      for i in range(len(IDS))])
+    shape = (2 * gap + 2 * (HV + gap), gap + 3 * (WM + gap))
+    checker = np.zeros(shape)
+    white = np.zeros(shape)
+    for (y0, x0, _, _), h in zip(boxes, hs):
+        m = _mask(rng)
+        checker[y0:y0 + HV, x0:x0 + WM] = 1000.0 * m * _render(h)
+        white[y0:y0 + HV, x0:x0 + WM] = 1000.0 * m
+    checker += noise * 1000.0 * rng.standard_normal(shape)
+    white += noise * 1000.0 * rng.standard_normal(shape)
+    return checker.astype(np.float32), white.astype(np.float32), boxes
+
+
+def _board_points():
+    u, v = np.meshgrid(np.arange(NX + 1), np.arange(NY + 1))
+    return np.stack([ORIGIN[0] + SQ * u.ravel(), ORIGIN[1] + SQ * v.ravel()], axis=1)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    rng = np.random.default_rng(0)
+    hs = _true_homographies(rng)
+    checker, white, boxes = _captures(rng, hs)
+    return hs, checker, white, boxes
+
+
+def test_homographies_recovered(scene):
+    hs, checker, white, boxes = scene
+    est, corners = view_homographies(checker, white, boxes, IDS, PATTERN, return_corners=True)
+    assert corners.shape == (len(IDS), PATTERN[0] * PATTERN[1], 2)
+    np.testing.assert_array_equal(est[0], np.eye(3))
+    pts = _board_points()
+    for k in range(1, len(IDS)):
+        err = np.linalg.norm(apply_homography(est[k], pts) - apply_homography(hs[k], pts), axis=1)
+        assert err.max() < 0.3, (IDS[k], err.max())
+    # Corner order matches the centre's despite the flips: corner i of view k is the image of
+    # corner i of the centre.
+    for k in range(1, len(IDS)):
+        mapped = apply_homography(hs[k], corners[0])
+        assert np.abs(mapped - corners[k]).max() < 0.5
+
+
+def test_optical_flow_refinement_corrects_a_perturbed_homography(scene):
+    hs, checker, white, boxes = scene
+    k = 2
+    crops = [unmask(checker[y:y + h, x:x + w], white[y:y + h, x:x + w]) for y, x, h, w in boxes]
+    # 1.5 px off in x and 1 px in y.
+    bad = np.array([[1, 0, 1.5], [0, 1, -1.0], [0, 0, 1]]) @ hs[k]
+    pts = _board_points()
+
+    def err(m):
+        return np.linalg.norm(apply_homography(m, pts) - apply_homography(hs[k], pts), axis=1).max()
+
+    for method in ("farneback", "dis"):
+        fixed = refine_homography(crops[0], crops[k], bad, method=method)
+        assert err(fixed) < 0.5 * err(bad), (method, err(bad), err(fixed))
+
+
+def test_unmask_fills_holes():
+    rng = np.random.default_rng(1)
+    m = _mask(rng)
+    img = _render(np.eye(3))
+    r = unmask(1000.0 * m * img, 1000.0 * m)
+    # Open pixels are exact; filled holes are close to the board away from its edges.
+    np.testing.assert_allclose(r[m > 0], img[m > 0], atol=1e-5)
+    flat = (img == 1.0) & (m == 0)
+    flat[:, :4] = flat[:, -4:] = False
+    assert np.median(np.abs(r[flat] - 1.0)) < 0.05
+
+
+def test_to_view_coordinates_matches_shifted_boxes():
+    rng = np.random.default_rng(2)
+    hb = _true_homographies(rng)[:3]
+    o = np.array([3.25, 1.5, 7.0])
+    hv = to_view_coordinates(hb, o)
+    p_view0 = rng.uniform(10, 100, (20, 2))
+    for k in range(3):
+        box = apply_homography(hb[k], p_view0 + [o[0], 0.0])
+        np.testing.assert_allclose(apply_homography(hv[k], p_view0), box - [o[k], 0.0],
+                                   atol=1e-9)
+    np.testing.assert_allclose(hv[0], np.eye(3), atol=1e-12)
+
+
+def test_bad_inputs(scene):
+    _, checker, white, boxes = scene
+    with pytest.raises(InputError, match="centre"):
+        view_homographies(checker, white, boxes[1:3], (1, 2), PATTERN)
+    with pytest.raises(InputError, match="not found"):
+        view_homographies(checker, white, boxes, IDS, (11, 9))
+    with pytest.raises(InputError, match="differ in shape"):
+        view_homographies(checker[:-1], white, boxes, IDS, PATTERN)
+    with pytest.raises(InputError, match="rows, expected"):
+        view_homographies(checker, white, boxes[:2], IDS, PATTERN)
+    with pytest.raises(InputError, match="refine"):
+        view_homographies(checker, white, boxes, IDS, PATTERN, refine="lucas")
+    with pytest.raises(InputError, match="dark"):
+        unmask(np.ones((5, 5)), np.zeros((5, 5)))

@@ -1,0 +1,154 @@
+"""Geometric maps: permutations as views, bilinear homographies against loops and OpenCV."""
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from recon.errors import InputError
+from recon.operators import (
+    Flip, HomographyWarp, Identity, Translate, WarpOperator, dot_test,
+)
+
+SETTINGS = settings(max_examples=25, deadline=None, derandomize=True, database=None)
+
+
+def dense_homography(matrix, in_shape, out_shape):
+    """Loop reference: view pixel (xv, yv) reads the centre image bilinearly at inv(matrix) p."""
+    h, w = in_shape
+    hv, wv = out_shape
+    inv = np.linalg.inv(np.asarray(matrix, dtype=np.float64))
+    a = np.zeros((hv * wv, h * w))
+    for yv in range(hv):
+        for xv in range(wv):
+            q = inv @ np.array([xv, yv, 1.0])
+            if q[2] <= 0:
+                continue
+            xs, ys = q[0] / q[2], q[1] / q[2]
+            x0, y0 = math.floor(xs), math.floor(ys)
+            fx, fy = xs - x0, ys - y0
+            for yy, wy in ((y0, 1 - fy), (y0 + 1, fy)):
+                for xx, wx in ((x0, 1 - fx), (x0 + 1, fx)):
+                    if 0 <= yy < h and 0 <= xx < w and wy * wx > 1e-9:
+                        a[yv * wv + xv, yy * w + xx] += wy * wx
+    return a
+
+
+def flip_matrix(shape, axes):
+    h, w = shape
+    idx = np.arange(h * w).reshape(h, w)
+    if 0 in axes:
+        idx = idx[::-1]
+    if 1 in axes:
+        idx = idx[:, ::-1]
+    return np.eye(h * w)[idx.ravel()]
+
+
+def check_operator(op, dense, rng):
+    x = rng.standard_normal(op.ishape)
+    y = rng.standard_normal(op.oshape)
+    l = op.ishape[0]
+    big = np.kron(np.eye(l), dense)
+    np.testing.assert_allclose(op.forward(x).ravel(), big @ x.ravel(), atol=1e-6)
+    np.testing.assert_allclose(op.adjoint(y).ravel(), big.T @ y.ravel(), atol=1e-6)
+    np.testing.assert_allclose(op.row_norms_sq().ravel(), np.sum(big**2, axis=1), atol=1e-6)
+    assert dot_test(op, rng) < 1e-6
+
+
+@pytest.mark.parametrize("axes", [(0,), (1,), (0, 1)])
+def test_flip_matches_permutation_and_is_a_view(axes):
+    rng = np.random.default_rng(0)
+    warp = Flip(axes).bind((3, 5))
+    op = WarpOperator(warp, 2)
+    check_operator(op, flip_matrix((3, 5), axes), rng)
+    x = rng.random((2, 3, 5), dtype=np.float32)
+    v = warp.apply(x)
+    assert np.shares_memory(v, x)  # negative strides, no copy
+    np.testing.assert_array_equal(warp.apply_adjoint(v), x)  # an involution
+
+
+def test_identity():
+    rng = np.random.default_rng(1)
+    warp = Identity().bind((4, 3))
+    check_operator(WarpOperator(warp, 2), np.eye(12), rng)
+    with pytest.raises(InputError):
+        Identity().bind((4, 3), (4, 4))
+
+
+@SETTINGS
+@given(h=st.integers(1, 5), w=st.integers(1, 5), hv=st.integers(1, 5), wv=st.integers(1, 5),
+       params=st.lists(st.floats(-1.0, 1.0), min_size=8, max_size=8), seed=st.integers(0, 999))
+def test_homography_matches_loop_reference(h, w, hv, wv, params, seed):
+    p = np.asarray(params)
+    matrix = np.array([[1 + 0.3 * p[0], 0.3 * p[1], 2 * p[2]],
+                       [0.3 * p[3], 1 + 0.3 * p[4], 2 * p[5]],
+                       [0.02 * p[6], 0.02 * p[7], 1.0]])
+    warp = HomographyWarp(matrix, (h, w), (hv, wv))
+    dense = dense_homography(matrix, (h, w), (hv, wv))
+    np.testing.assert_allclose(warp.matrix().toarray(), dense, atol=1e-5)
+    check_operator(WarpOperator(warp, 2), warp.matrix().toarray(), np.random.default_rng(seed))
+    n, c = warp.norm_parts()
+    np.testing.assert_allclose(n.ravel(), np.sum(dense**2, axis=1), atol=1e-5)
+    rows = np.arange(hv * wv).reshape(hv, wv)
+    expect_c = np.sum(dense[rows[:, :-1].ravel()] * dense[rows[:, 1:].ravel()], axis=1)
+    np.testing.assert_allclose(c.ravel(), expect_c, atol=1e-5)
+
+
+@pytest.mark.parametrize("axes", [(0,), (1,), (0, 1)])
+def test_flip_written_as_homography_is_the_flip(axes):
+    h, w = 4, 6
+    sx, sy = (-1.0 if 1 in axes else 1.0), (-1.0 if 0 in axes else 1.0)
+    m = np.array([[sx, 0, (w - 1) if sx < 0 else 0], [0, sy, (h - 1) if sy < 0 else 0], [0, 0, 1]])
+    a = HomographyWarp(m, (h, w)).matrix().toarray()
+    np.testing.assert_array_equal(a, flip_matrix((h, w), axes))
+
+
+def test_homography_agrees_with_opencv():
+    h, w = 40, 52
+    yy, xx = np.mgrid[0:h, 0:w]
+    img = (0.5 + 0.25 * np.sin(xx / 7.0) * np.cos(yy / 5.0)).astype(np.float32)
+    m = np.array([[0.97, 0.05, 1.3], [-0.04, 1.02, -0.7], [2e-4, -1e-4, 1.0]])
+    ours = HomographyWarp(m, (h, w), (h, w)).apply(img[None])[0]
+    ref = cv2.warpPerspective(img, m, (w, h), flags=cv2.INTER_LINEAR,
+                              borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    # OpenCV quantises bilinear weights to 1/32; compare away from the border.
+    inner = (slice(3, -3), slice(3, -3))
+    err = np.abs(ours - ref)[inner]
+    assert err.max() < 0.01 and err.mean() < 2e-3
+
+
+def test_translate():
+    rng = np.random.default_rng(3)
+    img = rng.random((1, 5, 7))
+    # Integer: plain slicing with zero fill.
+    v = Translate(1, -2).bind((5, 7)).apply(img)
+    expect = np.zeros_like(img)
+    expect[:, 1:, :5] = img[:, :4, 2:]
+    np.testing.assert_allclose(v, expect, atol=1e-7)
+    # Sub-pixel on an affine image: exact inside, v(y, x) = f(y - dy, x - dx).
+    yy, xx = np.mgrid[0:5, 0:7]
+    aff = (2.0 * xx + 3.0 * yy)[None].astype(np.float64)
+    v = Translate(0.25, 0.5).bind((5, 7)).apply(aff)
+    np.testing.assert_allclose(v[0, 1:, 1:], (2.0 * (xx - 0.5) + 3.0 * (yy - 0.25))[1:, 1:],
+                               atol=1e-5)
+    check_operator(WarpOperator(Translate(0.3, -1.6), 2, (4, 5)),
+                   dense_homography([[1, 0, -1.6], [0, 1, 0.3], [0, 0, 1]], (4, 5), (4, 5)), rng)
+
+
+@pytest.mark.parametrize("make", [
+    lambda: Flip(2),
+    lambda: Flip("x"),
+    lambda: Flip(()),
+    lambda: Flip(1).bind((3, 4), (4, 3)),
+    lambda: HomographyWarp(np.zeros((3, 3)), (3, 3)),
+    lambda: HomographyWarp(np.eye(2), (3, 3)),
+    lambda: HomographyWarp([[1, 0, np.nan], [0, 1, 0], [0, 0, 1]], (3, 3)),
+    lambda: HomographyWarp(np.eye(3), (3, 3)).bind((4, 4)),
+    lambda: Translate(np.inf, 0),
+    lambda: Identity().bind((0, 2)),
+])
+def test_bad_input(make):
+    with pytest.raises(InputError):
+        make()
