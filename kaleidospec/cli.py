@@ -12,6 +12,7 @@ import typer
 
 from kaleidospec.commands import demo, reconstruct
 from kaleidospec.commands import design
+from kaleidospec.commands import render
 
 app = typer.Typer(
     name="kaleidospec",
@@ -31,6 +32,7 @@ def _root() -> None:
 app.command("reconstruct")(reconstruct.reconstruct)
 app.add_typer(design.app, name="design")
 app.command("demo")(demo.demo)
+app.command("render")(render.render)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -208,7 +208,7 @@ class Design:
             raise InputError(f"views must be distinct ids in 0..8, got {self.views}")
         if not self.kaleidoscope and self.views != (0,):
             object.__setattr__(self, "views", (0,))
-        if self.relay_focal_mm >= self.object_distance_mm and self.kaleidoscope:
+        if self.relay_focal_mm >= self.mirror_length_mm + self.relay_gap_mm:
             raise InputError(
                 "the relay lens cannot image the diffuser: mirror_length_mm + relay_gap_mm must "
                 "exceed relay_focal_mm"

@@ -98,7 +98,7 @@ class DispersionFit:
 
 
 def fit_dispersion(wavelengths_nm, centroids, ref_nm: float | None = 550.0,
-                   degree: int = 2) -> DispersionFit:
+                   degree: int = 3) -> DispersionFit:
     r"""Fit :math:`\varphi_k(\lambda)` to measured line centroids.
 
     Parameters
@@ -112,8 +112,10 @@ def fit_dispersion(wavelengths_nm, centroids, ref_nm: float | None = 550.0,
         centre band.  It need not be one of the bands: the fit's constant term is free, and the
         curve is then re-expressed relative to it.
     degree : int
-        Polynomial degree in :math:`1/\lambda^2` (1–4; 2 covers BK7 over 450–700 nm to well
-        below 0.05 px).
+        Polynomial degree in :math:`1/\lambda^2` (1–4).  For a BK7 prism spreading 450–700 nm
+        over 50 px the model error is 0.50 / 0.13 / 0.03 / 0.006 px for degrees 1 / 2 / 3 / 4
+        (the Sellmeier infrared term is not a polynomial in :math:`1/\lambda^2`); 3 is the
+        default, and needs at least 4 bands.
 
     Returns
     -------

@@ -208,6 +208,36 @@ class IterationLoop:
         return time.perf_counter() - self.t0 - self.callback_seconds
 
 
+def preconditioned_norm_sq(op: LinearOperator, phi_inv: np.ndarray, n_iter: int = 15,
+                           dtype=np.float32, seed: int = 0) -> float:
+    r"""Estimate :math:`\nu = \|\Phi^{-1/2}H\|_2^2`, the top eigenvalue of :math:`H^\top\Phi^{-1}H`.
+
+    When :math:`HH^\top = \Phi` is diagonal (single-view CASSI), :math:`H^\top\Phi^{-1}H` is an
+    orthogonal projection and :math:`\nu = 1`; one probe :math:`HH^\top u = \Phi u` for a random
+    :math:`u` detects that case (one forward/adjoint pair).  Otherwise (several views see the
+    same voxel) a power iteration estimates :math:`\nu` (up to :math:`K`), times 1.02.
+    """
+    rng = np.random.default_rng(seed)
+    u = rng.standard_normal(op.oshape).astype(dtype)
+    u *= (phi_inv > 0)
+    hhu = op.forward(op.adjoint(u)).astype(np.float64)
+    phi = np.zeros(phi_inv.shape, dtype=np.float64)
+    np.divide(1.0, phi_inv, out=phi, where=phi_inv > 0)
+    err = np.linalg.norm(hhu - phi * u) / max(np.linalg.norm(hhu), 1e-30)
+    if err < (1e-5 if np.dtype(dtype) == np.float32 else 1e-10):
+        return 1.0
+    x = rng.standard_normal(op.ishape).astype(dtype)
+    x /= np.linalg.norm(x)
+    lam = 0.0
+    for _ in range(int(n_iter)):
+        y = op.adjoint(op.forward(x) * phi_inv)
+        lam = float(np.linalg.norm(y))
+        if lam == 0.0:
+            return 1.0
+        x = (y / lam).astype(dtype, copy=False)
+    return 1.02 * lam
+
+
 def safe_reciprocal(a: np.ndarray, dtype) -> np.ndarray:
     """``1/a`` where ``a > 0``, else 0 (rows of H that see nothing carry no information)."""
     a = np.asarray(a, dtype=np.float64)

@@ -6,7 +6,7 @@ compressive sensing", ICIP 2016.  With :math:`\Phi = \mathrm{diag}(HH^\top)` (th
 
 .. math::
 
-    y_{k}   &= y_{k-1} + (g - Hf_{k-1})                                   \\
+    y_{k}   &= y_{k-1} + (g - Hf_{k-1}), \quad y_0 = g                     \\
     \theta_k &= f_{k-1} + H^\top\!\bigl(\Phi^{-1}(y_k - Hf_{k-1})\bigr)   \\
     f_k     &= \mathrm{prox}_{\lambda\mathrm{TV}}(\theta_k)
 
@@ -21,12 +21,15 @@ iteration to the next, so 1-2 inner iterations replace the 5 cold ones of the pu
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
 from recon.prox.tv import TVProx, tv_norm
-from recon.solvers.base import IterationLoop, SolverResult, check_problem, safe_reciprocal
+from recon.solvers.base import (IterationLoop, SolverResult, check_problem,
+                                preconditioned_norm_sq, safe_reciprocal)
 
 __all__ = ["gap_tv"]
 
@@ -34,7 +37,7 @@ __all__ = ["gap_tv"]
 def gap_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float = 0.1,
            x0: np.ndarray | None = None, tol: float | None = None, callback=None,
            tv_iters: int = 2, warm_dual: bool = True, accelerate: bool = True,
-           isotropic: bool = True, objective: bool = False,
+           isotropic: bool = True, objective: bool = False, step: float | None = None,
            threads: int | None = None) -> SolverResult:
     r"""Reconstruct with GAP-TV.
 
@@ -68,6 +71,11 @@ def gap_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float = 0
     objective : bool
         Record :math:`\frac12\|g-Hf_k\|^2+\tau\mathrm{TV}(f_k)` every iteration (a TV norm per
         iteration; the forward is reused).
+    step : float, optional
+        Step :math:`\mu` of the projection, :math:`\theta_k = f_{k-1} + \mu H^\top\Phi^{-1}(\dots)`.
+        Default :math:`1/\nu` with :math:`\nu = \|\Phi^{-1/2}H\|^2`
+        (:func:`~recon.solvers.base.preconditioned_norm_sq`): 1 for single-view CASSI (the
+        exact projection), smaller with several views, where :math:`\mu = 1` diverges.
     threads : int, optional
         Threads of the TV prox (:class:`~recon.prox.TVProx`).
 
@@ -83,9 +91,19 @@ def gap_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float = 0
     if phi_inv.shape != op.oshape:
         raise InputError(f"row_norms_sq() shape {phi_inv.shape} != oshape {op.oshape}")
 
+    if step is None:
+        step = 1.0 / preconditioned_norm_sq(op, phi_inv, dtype=dtype)
+    step = float(step)
+    if not (math.isfinite(step) and step > 0):
+        raise InputError(f"step must be > 0, got {step}")
+    if step != 1.0:
+        phi_inv *= step
+
     f = x0 if x0 is not None else np.ascontiguousarray(op.adjoint(g * phi_inv), dtype=dtype)
     prox = TVProx(op.ishape, dtype, isotropic, threads)
-    y = np.zeros_like(g)
+    # The accumulator starts at g: with the minimum-norm start (Hf = g) the first step is then
+    # a pure TV step, where y = 0 would first send f to zero.
+    y = g.copy()
     r = np.empty_like(g)
     f_prev = np.empty_like(f) if loop.needs_change else None
     hf = op.forward(f)
@@ -115,5 +133,5 @@ def gap_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float = 0
 
     return SolverResult(x=f, iterations=loop.iterations, objective=history,
                         seconds=loop.seconds(), converged=loop.converged,
-                        info={"tv_iters": int(tv_iters), "accelerate": accelerate,
+                        info={"tv_iters": int(tv_iters), "accelerate": accelerate, "step": step,
                               "warm_dual": warm_dual})

@@ -229,7 +229,6 @@ def test_the_apex_that_reaches_60px_exists_and_exceeds_17deg():
 
 def test_guard_keeps_views_apart_and_too_small_a_guard_is_detected():
     d = Design()
-    lo, hi = d.dispersion_range_px
     assert d.guard_px >= math.ceil(d.dispersion_span_px) and d.guard_px % 2 == 0
     assert not d.replace(mask_guard_px=10).views_fit
 
