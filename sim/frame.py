@@ -132,6 +132,8 @@ def simulate_frame(design, cube, wavelengths, *, direct: bool = False, spp: int 
         bands_wl = wl
     e = np.moveaxis(irr, 0, 2)  # (Hs, Ws, L) view, no copy
     ne = sensor.mean_electrons(e, design, bands_wl, diffraction=diffraction)
+    # FFT convolution leaves round-off around zero (|x| ~ 1e-9 of the peak); charge is ≥ 0.
+    np.maximum(ne, 0.0, out=ne)
     if radiance_scale is None:
         peak = float(ne.max())
         if peak <= 0:

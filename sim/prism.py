@@ -136,6 +136,10 @@ def prism_geometry(glass: str, apex_deg: float, center_nm: float, entry_point,
         Direction of the centre wavelength's ray after the prism.
     exit_point : ndarray (3,)
         Where the axis ray leaves the exit face.
+    entry_surface : ndarray (3,)
+        Where the axis ray meets the entry face.
+    glass_path : float
+        Length of the axis ray inside the glass (mm).
     """
     A = np.radians(float(apex_deg))
     th1 = min_deviation_incidence_rad(glass, apex_deg, center_nm)
@@ -185,15 +189,20 @@ def prism_geometry(glass: str, apex_deg: float, center_nm: float, entry_point,
     # The axis ray meets the exit face at x' = (h - u0) tan(A/2).
     xw, zw = to_world((h - u0) * t, u0) - ref
     exit_point = e + np.array([xw, 0.0, zw])
-    return verts, faces, exit_dir, exit_point
+    xw, zw = to_world(-(h - u0) * t, u0) - ref
+    entry_surface = e + np.array([xw, 0.0, zw])
+    return verts, faces, exit_dir, exit_point, entry_surface, 2.0 * (h - u0) * t
 
 
 def prism_shape(glass: str, apex_deg: float, center_nm: float, entry_point, height_mm: float,
                 depth_mm: float, base_side: float = 1.0, hero: bool = True, fresnel: bool = True):
-    """The prism as a Mitsuba mesh with the Sellmeier BSDF; returns (mesh, exit_dir, exit_point)."""
+    """The prism as a Mitsuba mesh with the Sellmeier BSDF.
+
+    Returns (mesh, exit_dir, exit_point, entry_surface, glass_path); see :func:`prism_geometry`.
+    """
     from sim.lens import mesh_shape
 
-    v, f, d, p = prism_geometry(glass, apex_deg, center_nm, entry_point, height_mm, depth_mm,
-                                base_side)
+    v, f, d, p, q, t = prism_geometry(glass, apex_deg, center_nm, entry_point, height_mm,
+                                      depth_mm, base_side)
     mesh = mesh_shape(v, f, dispersive_dielectric(glass, hero=hero, fresnel=fresnel), "prism")
-    return mesh, d, p
+    return mesh, d, p, q, t

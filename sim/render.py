@@ -54,7 +54,8 @@ def check_cube(design, cube, wavelengths):
 
 def render_direct(design, cube, wavelengths, spp: int = 16, seed: int = 0, *,
                   sampling: str = "box", intervals=None, views=None, crop=None,
-                  lenses: str = "thin", mask_pattern=None, progress: bool = True) -> np.ndarray:
+                  lenses: str = "thin", mask_pattern=None, windows=None,
+                  progress: bool = True) -> np.ndarray:
     """Per-band sensor irradiance (L, Hs, Ws) float32 from Mitsuba's path tracer.
 
     Parameters
@@ -78,6 +79,8 @@ def render_direct(design, cube, wavelengths, spp: int = 16, seed: int = 0, *,
         Further restrict rendering to this window.
     lenses : {"thin", "real"}
         Lens model (:func:`sim.scene.build_scene`).
+    windows : list of (row0, col0, h, w), optional
+        Render exactly these sensor windows instead of the views' rectangles.
     mask_pattern : ndarray of bool, optional
         Replace ``design.mask_pattern()`` (e.g. all open, to image a target without coding).
     """
@@ -100,8 +103,8 @@ def render_direct(design, cube, wavelengths, spp: int = 16, seed: int = 0, *,
     scene = mi.load_dict(spec.scene)
     Hs, Ws = design.sensor_height_px, design.sensor_width_px
     out = np.zeros((wl.size, Hs, Ws), dtype=np.float32)
-    rects = []
-    for v in (design.views if views is None else views):
+    rects = [tuple(int(x) for x in w) for w in windows] if windows is not None else []
+    for v in (() if windows is not None else design.views if views is None else views):
         r0, c0, h, w = design.view_rect(v)
         r1, c1 = min(r0 + h, Hs), min(c0 + w, Ws)
         r0, c0 = max(r0, 0), max(c0, 0)

@@ -109,14 +109,20 @@ def build_scene(design, cube_lhw: np.ndarray | None = None, wavelengths=None, *,
         scene["relay_lens"] = lens.real_lens_shape(fr, [0, 0, z_relay], d_relay)
         scene["collimator_lens"] = lens.real_lens_shape(fc, [0, 0, z_col], d_col)
     scene["mask"] = mask.mask_shape(design, z_mask, mask_pattern)
-    pmesh, exit_dir, exit_pt = prism.prism_shape(
+    pmesh, exit_dir, exit_pt, entry_pt, glass_path = prism.prism_shape(
         design.prism_glass, design.prism_apex_deg, design.prism_center_nm,
         [0.0, 0.0, z_prism], height_mm=3.0 * footprint + 10.0, depth_mm=3.0 * footprint + 10.0,
         base_side=1.0,
     )
     scene["prism"] = pmesh
-    # The pupil sits at the collimator's back focal plane, measured along the folded axis.
-    cam_pos = np.array([0.0, 0.0, z_prism]) + exit_dir * (z_col + fc - z_prism)
+    # The pupil sits on the axis ray at the collimator's back focal plane, the distance measured
+    # along the folded axis with the glass path reduced by n (so the mask side is telecentric
+    # and the pupil is centred on every beam: a decentred pupil vignettes one side).
+    from sim.glass import refractive_index
+
+    n_c = float(refractive_index(design.prism_glass, design.prism_center_nm))
+    left = fc - (entry_pt[2] - z_col) - glass_path / n_c
+    cam_pos = exit_pt + exit_dir * left
     return SceneSpec(scene=scene, camera_position=cam_pos, camera_direction=exit_dir,
                      texture=tex,
                      z={"relay": z_relay, "mask": z_mask, "collimator": z_col, "prism": z_prism})

@@ -114,7 +114,7 @@ class Calibration:
 
 def build_calibration(*, view_ids, view_boxes, box_homographies, mask_images, wavelengths,
                       dispersion, checker_dispersion, gains=None, design_hash=None,
-                      captures=()) -> Calibration:
+                      captures=(), snap_px: float = 0.05) -> Calibration:
     r"""Assemble a :class:`Calibration` from the results of the individual steps.
 
     Normalises the offsets (smallest 0, :func:`~recon.calibration.dispersion.normalise_offsets`),
@@ -142,13 +142,21 @@ def build_calibration(*, view_ids, view_boxes, box_homographies, mask_images, wa
     design_hash : str, optional
     captures : sequence of str
         Names of the captures used (recorded in the sidecar).
+    snap_px : float
+        Offsets within this distance of an integer are rounded to it.  It is below what a line
+        centroid resolves, keeps integer shifts exact copies (no interpolation blur) and stops a
+        measurement of 11.02 px for a true 11 px from costing the cube a column
+        (:math:`W_v = W_m - \lceil\max o\rceil`).  0 disables it.
     """
     ids = check_view_ids(view_ids)
     if 0 not in ids:
         raise InputError("a calibration needs the centre view (id 0)")
     phi = np.asarray(dispersion, dtype=np.float64)
+    if not 0.0 <= snap_px < 0.5:
+        raise InputError(f"snap_px must be in [0, 0.5), got {snap_px}")
     offsets, shift = normalise_offsets(phi)
-    chk = np.asarray(checker_dispersion, dtype=np.float64) - shift
+    offsets = _snap(offsets, snap_px)
+    chk = _snap(np.asarray(checker_dispersion, dtype=np.float64) - shift, snap_px)
     hv_ = to_view_coordinates(box_homographies, chk, centre=ids.index(0))
     masks = np.asarray(mask_images, dtype=np.float32)
     n_bands = np.asarray(wavelengths).size
@@ -163,6 +171,11 @@ def build_calibration(*, view_ids, view_boxes, box_homographies, mask_images, wa
                        gains=np.ones(n_bands) if gains is None else gains,
                        wavelengths=wavelengths, cube_shape=(masks.shape[2], wv, n_bands),
                        design_hash=design_hash, captures=list(captures))
+
+
+def _snap(o: np.ndarray, tol: float) -> np.ndarray:
+    r = np.round(o)
+    return np.where(np.abs(o - r) < tol, r, o)
 
 
 def check_hash(design_hash) -> str:

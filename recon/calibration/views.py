@@ -189,7 +189,7 @@ def _plateau(profile: np.ndarray) -> float:
 
 
 def _grid_runs(profile: np.ndarray, n: int, level: float, axis: str) -> list[tuple[int, int]]:
-    """Split a row or column profile into ``n`` lit runs [start, stop)."""
+    """Split a row or column profile into ``n`` cells [start, stop), one lit run in each."""
     peak = float(np.percentile(profile, 95))
     if not peak > 0:
         raise InputError(f"the white capture is dark (no lit {axis})")
@@ -202,7 +202,11 @@ def _grid_runs(profile: np.ndarray, n: int, level: float, axis: str) -> list[tup
     longest = max(b - a for a, b in runs)
     runs = [(a, b) for a, b in runs if b - a >= longest / 4]
     if len(runs) == n:
-        return runs
+        # Cells reach to the middle of the gaps (and to the sensor's edges): a run seen through
+        # fewer views (corners dark) is dimmer in the global profile and its edges may fall
+        # under the threshold there; the local profile inside the cell finds them.
+        cuts = [0] + [(runs[i][1] + runs[i + 1][0]) // 2 for i in range(n - 1)] + [profile.size]
+        return [(int(cuts[i]), int(cuts[i + 1])) for i in range(n)]
     if len(runs) == 1:
         # Views that touch on the sensor: equal parts of the lit extent.
         a, b = runs[0]

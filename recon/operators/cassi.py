@@ -21,8 +21,8 @@ measurement is :math:`(K, H_v, W_m)` with :math:`W_m = W_v + \lceil\max\varphi\r
 \lfloor\min\varphi\rfloor`.  ``row_norms_sq`` gives the diagonal of :math:`HH^\top` in closed
 form (GAP-TV divides by it).
 
-The loops run over views and bands only; each band is a contiguous image, masks multiply into a
-reused buffer and shifts are slice additions into the preallocated measurement.
+The loops run over row strips, bands and views only (never pixels), in float32 with
+preallocated buffers; the comments above ``CassiOperator._forward`` explain their arrangement.
 """
 
 from __future__ import annotations
@@ -45,6 +45,8 @@ from recon.operators.warp import Flip, Identity, Warp, as_warp
 KALEIDOSCOPE_FLIPS: tuple[tuple[int, ...], ...] = (
     (), (1,), (1,), (0,), (0,), (0, 1), (0, 1), (0, 1), (0, 1),
 )
+#: Rows per strip in the hot loops (a strip of every view's buffers fits in L2 cache).
+STRIP_ROWS = 32
 VIEW_NAMES = ("centre", "left", "right", "top", "bottom",
               "top-left", "top-right", "bottom-left", "bottom-right")
 
@@ -134,47 +136,86 @@ class CassiOperator(LinearOperator):
         return self._masks64
 
     # -- operator --------------------------------------------------------------------------
-    # Both directions work on flattened rows: a view image is written into the left Wv columns
-    # of a zero-padded (Hv, Wm) buffer, so shifting it by a columns is a 1-D offset of a in the
-    # flattened measurement (the zero padding keeps rows apart because a + 1 + Wv <= Wm).
-    # Contiguous 1-D adds are several times faster than the same adds on 2-D column slices.
-    # Flipped views never read or write reversed strides per band: see _view_plan.
+    # How the hot loops are arranged (all exact; only the order of operations changes):
+    # * Flat rows: a view image is written into the left Wv columns of a zero-padded (rows, Wm)
+    #   buffer, so a shift by a columns is a 1-D offset of a in the flattened measurement (the
+    #   zero padding keeps rows apart because a + 1 + Wv <= Wm).  Contiguous 1-D adds are
+    #   several times faster than the same adds on 2-D column slices.
+    # * Flipped views are computed unflipped and flipped once per view (see _view_plan).
+    # * Permutation views run in strips of STRIP_ROWS rows, bands outside views inside, so a
+    #   strip of one band, of every view's measurement and of every mask stays in L2 cache.
+    # * Views with a resampling warp run afterwards, one at a time (one warped cube in memory).
     def _forward(self, x):
         dt = work_dtype(x)
         x = x.astype(dt, copy=False)
         hv, wv = self.views[0].mask.shape
         wm = self.oshape[2]
-        n = (hv - 1) * wm + wv  # span of the meaningful entries of a padded, flattened image
         out = np.zeros(self.oshape, dtype=dt)
+        masks = self._masks(dt)
+        perm = [k for k, p in enumerate(self._plan) if p.warp is None]
+        # Where each view accumulates: its measurement, or a scratch image when it is flipped.
+        n_flip = sum(1 for k in perm if self._plan[k].flip)
+        flipped = np.zeros((n_flip, hv, wm), dtype=dt)
+        acc, j = {}, 0
+        for k in perm:
+            if self._plan[k].flip:
+                acc[k], j = flipped[j], j + 1
+            else:
+                acc[k] = out[k]
+        # Sub-pixel shifts: sum_l [(1-t) T_a + t T_{a+1}] b_l = P - Q + T_1 Q with
+        # P = sum_l T_a b_l and Q = sum_l t T_a b_l: three 1-D passes per band.
+        sub = [k for k in perm if self._plan[k].subpixel]
+        q = np.zeros((len(sub), hv, wm), dtype=dt)
+        qk = dict(zip(sub, q))
+        pad = np.zeros((STRIP_ROWS, wm), dtype=dt)
+        for r0 in range(0, hv if perm else 0, STRIP_ROWS):
+            r1 = min(hv, r0 + STRIP_ROWS)
+            n = (r1 - r0 - 1) * wm + wv
+            body, flat = pad[:r1 - r0, :wv], pad.reshape(-1)[:n]
+            gs = [acc[k][r0:r1].reshape(-1) for k in perm]
+            qs = [qk[k][r0:r1].reshape(-1) if k in qk else None for k in perm]
+            ms = [masks[k][r0:r1] for k in perm]
+            for l in range(self.n_bands):
+                xs = x[l, r0:r1]
+                for i, k in enumerate(perm):
+                    a, t = self._plan[k].parts[l]
+                    np.multiply(xs, ms[i], out=body)
+                    seg = gs[i][a:a + n]
+                    np.add(seg, flat, out=seg)
+                    if t != 0.0:
+                        flat *= t
+                        seg = qs[i][a:a + n]
+                        np.add(seg, flat, out=seg)
+        for k in perm:
+            g = acc[k].reshape(-1)
+            if k in qk:
+                qf = qk[k].reshape(-1)
+                g -= qf
+                np.add(g[1:], qf[:-1], out=g[1:])
+            if self._plan[k].flip:
+                np.copyto(out[k], acc[k][self._plan[k].flip])
+        # Resampled views.
+        n = (hv - 1) * wm + wv
         pad = np.zeros((hv, wm), dtype=dt)
         body, flat = pad[:, :wv], pad.reshape(-1)[:n]
-        q = np.zeros(hv * wm, dtype=dt)
-        acc = np.zeros((hv, wm), dtype=dt) if any(p.flip for p in self._plan) else None
-        for k, (plan, mask) in enumerate(zip(self._plan, self._masks(dt))):
-            xv = x if plan.warp is None else plan.warp.apply(x)
-            if plan.flip:
-                acc.fill(0)
-                g = acc
-            else:
-                g = out[k]
-            gf = g.reshape(-1)
-            # Sub-pixel shifts: sum_l [(1-t) T_a + t T_{a+1}] b_l = P - Q + T_1 Q with
-            # P = sum_l T_a b_l and Q = sum_l t T_a b_l: three 1-D passes per band.
-            if plan.subpixel:
-                q.fill(0)
+        qf = np.zeros(hv * wm, dtype=dt)
+        for k, plan in enumerate(self._plan):
+            if plan.warp is None:
+                continue
+            xv = plan.warp.apply(x)
+            g = out[k].reshape(-1)
+            qf.fill(0)
             for l, (a, t) in enumerate(plan.parts):
-                np.multiply(xv[l], mask, out=body)
-                seg = gf[a:a + n]
+                np.multiply(xv[l], masks[k], out=body)
+                seg = g[a:a + n]
                 np.add(seg, flat, out=seg)
                 if t != 0.0:
                     flat *= t
-                    seg = q[a:a + n]
+                    seg = qf[a:a + n]
                     np.add(seg, flat, out=seg)
             if plan.subpixel:
-                gf -= q
-                np.add(gf[1:], q[:-1], out=gf[1:])
-            if plan.flip:
-                np.copyto(out[k], g[plan.flip])
+                g -= qf
+                np.add(g[1:], qf[:-1], out=g[1:])
         return out
 
     def _adjoint(self, y):
@@ -182,43 +223,68 @@ class CassiOperator(LinearOperator):
         y = np.ascontiguousarray(y, dtype=dt)
         hv, wv = self.views[0].mask.shape
         wm = self.oshape[2]
+        masks = self._masks(dt)
+        perm = [k for k, p in enumerate(self._plan) if p.warp is None]
+        # The first permutation view covers every pixel, so it assigns instead of adding.
+        out = np.empty(self.ishape, dtype=dt) if perm else np.zeros(self.ishape, dtype=dt)
+        # Per view: the measurement (flipped once if the view is) and, for sub-pixel shifts,
+        # its forward difference, so that z[i] = (1-t) y[a+i] + t y[a+1+i] = y[a+i] + t dy[a+i].
+        ys, dys = {}, {}
+        for k in perm:
+            plan = self._plan[k]
+            ys[k] = np.ascontiguousarray(y[k][plan.flip]) if plan.flip else y[k]
+            if plan.subpixel:
+                d = np.zeros((hv, wm), dtype=dt)
+                yf = ys[k].reshape(-1)
+                np.subtract(yf[1:], yf[:-1], out=d.reshape(-1)[:-1])
+                dys[k] = d
+        zbuf = np.zeros(STRIP_ROWS * wm, dtype=dt)
+        scratch = np.empty(STRIP_ROWS * wm, dtype=dt)
+        band = np.empty((STRIP_ROWS, wv), dtype=dt)
+        for r0 in range(0, hv if perm else 0, STRIP_ROWS):
+            r1 = min(hv, r0 + STRIP_ROWS)
+            nr = r1 - r0
+            n = (nr - 1) * wm + wv
+            zn, sc, b = zbuf[:n], scratch[:n], band[:nr]
+            z = zbuf[:nr * wm].reshape(nr, wm)[:, :wv]
+            yk = [ys[k][r0:r1].reshape(-1) for k in perm]
+            dk = [dys[k][r0:r1].reshape(-1) if k in dys else None for k in perm]
+            ms = [masks[k][r0:r1] for k in perm]
+            for l in range(self.n_bands):
+                o = out[l, r0:r1]
+                for i, k in enumerate(perm):
+                    a, t = self._plan[k].parts[l]
+                    if t == 0.0:
+                        np.copyto(zn, yk[i][a:a + n])
+                    else:
+                        np.multiply(dk[i][a:a + n], t, out=sc)
+                        np.add(sc, yk[i][a:a + n], out=zn)
+                    if i == 0:
+                        np.multiply(z, ms[i], out=o)
+                    else:
+                        np.multiply(z, ms[i], out=b)
+                        np.add(o, b, out=o)
+        # Resampled views.
         n = (hv - 1) * wm + wv
-        # A permutation first view covers every pixel, so it may assign instead of add.
-        fresh = self._plan[0].warp is None
-        out = np.empty(self.ishape, dtype=dt) if fresh else np.zeros(self.ishape, dtype=dt)
         zflat = np.zeros(hv * wm, dtype=dt)
         z, zn = zflat.reshape(hv, wm)[:, :wv], zflat[:n]
         dy = np.empty(hv * wm - 1, dtype=dt)
-        yflip = np.empty((hv, wm), dtype=dt)
         scratch = np.empty(n, dtype=dt)
-        band = np.empty((hv, wv), dtype=dt)
-        bflat = band.reshape(-1)
-        for k, (plan, mask) in enumerate(zip(self._plan, self._masks(dt))):
-            if plan.flip:
-                np.copyto(yflip, y[k][plan.flip])
-                yk = yflip.reshape(-1)
-            else:
-                yk = y[k].reshape(-1)
+        for k, plan in enumerate(self._plan):
+            if plan.warp is None:
+                continue
+            yk = y[k].reshape(-1)
             if plan.subpixel:
                 np.subtract(yk[1:], yk[:-1], out=dy)
-            tmp = None if plan.warp is None else np.empty((self.n_bands, hv, wv), dtype=dt)
+            tmp = np.empty((self.n_bands, hv, wv), dtype=dt)
             for l, (a, t) in enumerate(plan.parts):
-                # z[i] = (1-t) y[a+i] + t y[a+1+i] = y[a+i] + t dy[a+i]
                 if t == 0.0:
                     np.copyto(zn, yk[a:a + n])
                 else:
                     np.multiply(dy[a:a + n], t, out=scratch)
                     np.add(scratch, yk[a:a + n], out=zn)
-                if tmp is not None:
-                    np.multiply(z, mask, out=tmp[l])
-                elif fresh and k == 0:
-                    np.multiply(z, mask, out=out[l])
-                else:
-                    np.multiply(z, mask, out=band)
-                    ol = out[l].reshape(-1)
-                    np.add(ol, bflat, out=ol)
-            if tmp is not None:
-                out += plan.warp.apply_adjoint(tmp)
+                np.multiply(z, masks[k], out=tmp[l])
+            out += plan.warp.apply_adjoint(tmp)
         return out
 
     def row_norms_sq(self) -> np.ndarray:

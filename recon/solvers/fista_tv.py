@@ -15,7 +15,8 @@ with :math:`L \ge \|H\|_2^2` (power iteration):
     t_{k+1} &= \bigl(1+\sqrt{1+4t_k^2}\bigr)/2, \qquad
     z_{k+1} = f_k + \frac{t_k-1}{t_{k+1}}(f_k - f_{k-1}).
 
-It minimises the same objective as TwIST for any operator (any number of views, no
+with an adaptive restart of the momentum (O'Donoghue & Candès 2015).  It minimises the same
+objective as TwIST for any operator (any number of views, no
 assumption on :math:`HH^\top`), with one forward and one adjoint per iteration.  The TV prox is
 warm-started from the previous dual.
 """
@@ -38,7 +39,7 @@ __all__ = ["fista_tv"]
 def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float = 0.15,
              x0: np.ndarray | None = None, tol: float | None = None, callback=None,
              tv_iters: int = 2, warm_dual: bool = True, lipschitz: float | None = None,
-             isotropic: bool = True, objective: bool = False,
+             isotropic: bool = True, objective: bool = False, restart: bool = True,
              threads: int | None = None) -> SolverResult:
     r"""Reconstruct with FISTA and a TV prior.
 
@@ -63,6 +64,10 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float =
     isotropic : bool
     objective : bool
         Record the objective of every iterate (one extra forward per iteration).
+    restart : bool
+        Adaptive restart of the momentum (default on) when the objective rises or the step
+        points against the generalised gradient; costs one forward and a TV norm per
+        iteration.  Without it the inexact (warm-started) prox makes FISTA oscillate.
     threads : int, optional
 
     Returns
@@ -86,6 +91,8 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float =
     z = f.copy()
     prox = TVProx(op.ishape, dtype, isotropic, threads)
     t = 1.0
+    restarts = 0
+    prev_obj = math.inf
     history: list[float] = []
     for it in range(1, iters + 1):
         r = op.forward(z)
@@ -95,15 +102,24 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float =
         step += z
         f_prev, f = f, f_prev
         prox(step, tau / lip, tv_iters, warm=warm_dual, out=f)
+        # Adaptive restart (O'Donoghue & Candes 2015): momentum is dropped when the objective
+        # rises or the step f - f_prev points against the generalised gradient z - f.  With
+        # an inexact (warm-started) prox plain FISTA oscillates instead of converging.
+        np.subtract(z, f, out=step)
+        np.subtract(f, f_prev, out=z)
+        obj = None
+        if objective or restart:
+            obj = data_misfit(op, g, f)[0] + tau * tv_norm(f, isotropic)
+        if restart and (float(np.vdot(step, z)) > 0 or obj > prev_obj):
+            t = 1.0
+            restarts += 1
+        prev_obj = obj if obj is not None else prev_obj
         t_next = 0.5 * (1.0 + math.sqrt(1.0 + 4.0 * t * t))
         # z = f + ((t-1)/t_next) (f - f_prev)
-        np.subtract(f, f_prev, out=z)
         z *= (t - 1.0) / t_next
         z += f
         t = t_next
-        obj = None
         if objective:
-            obj = data_misfit(op, g, f)[0] + tau * tv_norm(f, isotropic)
             history.append(obj)
         change = loop.relative_change(f, f_prev, step) if loop.needs_change else None
         if loop.step(it, f, change, obj):
@@ -111,4 +127,4 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float =
 
     return SolverResult(x=f, iterations=loop.iterations, objective=history,
                         seconds=loop.seconds(), converged=loop.converged,
-                        info={"lipschitz": lip, "tv_iters": int(tv_iters)})
+                        info={"lipschitz": lip, "tv_iters": int(tv_iters), "restarts": restarts})

@@ -8,7 +8,7 @@ from hypothesis import given, settings, strategies as st
 
 from recon.errors import InputError
 from recon.operators import (
-    CalibratedCassi, CassiOperator, Flip, Translate, View, dot_test, kaleidoscope_cassi,
+    CalibratedCassi, Flip, Translate, dot_test, kaleidoscope_cassi,
 )
 
 SETTINGS = settings(max_examples=30, deadline=None, derandomize=True, database=None)
@@ -106,7 +106,7 @@ def test_equals_mask_and_shift_for_integer_offsets():
 def test_default_cube_shape_and_3d_masks():
     cm = np.ones((3, 4, 10), dtype=np.float32)
     op = CalibratedCassi(cm, [0, 1.5, 3])
-    assert op.ishape == (3, 4, 6) and op.oshape == (1, 4, 10)
+    assert op.ishape == (3, 4, 7) and op.oshape == (1, 4, 10)  # W = Wm - ceil(max phi)
     assert op.forward(np.ones(op.ishape, dtype=np.float32)).dtype == np.float32
 
 

@@ -1,0 +1,138 @@
+"""End to end: calibrate from captures made by a known operator, then compare operators.
+
+The "instrument" is H1's ideal ``kaleidoscope_cassi`` (5 views, flips, integer dispersion) with
+its views placed on a sensor; every capture (white, line, checkerboard) is that operator applied
+to a calibration scene.  The calibration sees only the sensor frames.
+"""
+
+import numpy as np
+import pytest
+from scipy.ndimage import gaussian_filter
+
+from recon.calibration import (build_calibration, find_view_boxes, fit_dispersion,
+                               line_centroids, mask_images, measurements,
+                               operator_from_calibration, view_homographies)
+from recon.calibration.geometry import apply_homography
+from recon.calibration.views import VIEW_GRID
+from recon.errors import InputError
+from recon.operators import dot_test
+from recon.operators.cassi import kaleidoscope_cassi
+
+IDS = (0, 1, 2, 3, 4)
+HV, WV = 96, 128
+LAM = np.array([450.0, 500.0, 550.0, 600.0, 650.0])
+PHI = np.array([-7.0, -3.0, 0.0, 2.0, 4.0])           # relative to 550 nm
+GAP = 8
+HASH = "feedc0ffee123456"
+
+
+class Instrument:
+    def __init__(self, rng, noise=0.002):
+        cells = rng.random((len(IDS), HV // 2, WV // 2)) < 0.5
+        self.masks = np.kron(cells, np.ones((1, 2, 2))).astype(np.float32)
+        self.op = kaleidoscope_cassi(self.masks, PHI, n_views=len(IDS))
+        _, self.hv, self.wm = self.op.oshape
+        self.shape = (GAP + 3 * (self.hv + GAP), GAP + 3 * (self.wm + GAP))
+        self.boxes = np.array([(GAP + r * (self.hv + GAP), GAP + c * (self.wm + GAP),
+                                self.hv, self.wm) for r, c in (VIEW_GRID[v] for v in IDS)])
+        self.rng, self.noise = rng, noise
+
+    def frame(self, g, level=1000.0):
+        f = np.zeros(self.shape)
+        for (y0, x0, h, w), gk in zip(self.boxes, g):
+            f[y0:y0 + h, x0:x0 + w] = gk
+        f = level * f + self.noise * level * self.rng.standard_normal(f.shape)
+        return f.astype(np.float32)
+
+    def capture(self, cube, level=1000.0):
+        return self.frame(self.op.forward(cube.astype(np.float32)), level)
+
+
+def _board(h, w, sq=12, origin=(10, 6), n=(9, 7)):
+    yy, xx = np.mgrid[0:h, 0:w]
+    u, v = (xx - origin[0]) // sq, (yy - origin[1]) // sq
+    inside = (u >= 0) & (u < n[0]) & (v >= 0) & (v < n[1])
+    return np.where(inside & ((u + v) % 2 == 0), 0.1, 1.0)
+
+
+@pytest.fixture(scope="module")
+def calibrated():
+    rng = np.random.default_rng(0)
+    inst = Instrument(rng)
+    n_bands = LAM.size
+    unit = np.zeros((n_bands, HV, WV))
+    whites, lines = [], []
+    for l in range(n_bands):
+        cube = unit.copy()
+        cube[l] = 1.0
+        whites.append(inst.capture(cube))
+        cube = unit.copy()
+        cube[l, :, 60] = 1.0
+        lines.append(inst.capture(cube, level=3000.0))
+    whites, lines = np.stack(whites), np.stack(lines)
+    cube = unit.copy()
+    cube[2] = _board(HV, WV)
+    checker = inst.capture(cube)
+
+    boxes = find_view_boxes(whites, IDS)
+    fit = fit_dispersion(LAM, line_centroids(lines, boxes), ref_nm=550.0, degree=4)
+    cal = build_calibration(
+        view_ids=IDS, view_boxes=boxes,
+        box_homographies=view_homographies(checker, whites[2], boxes, IDS, (8, 6)),
+        mask_images=mask_images(whites, boxes), wavelengths=LAM, dispersion=fit(LAM),
+        checker_dispersion=fit([550.0])[:, 0], design_hash=HASH,
+        captures=["white", "line", "checker"])
+    return inst, cal
+
+
+def test_calibration_matches_the_instrument(calibrated):
+    inst, cal = calibrated
+    np.testing.assert_array_equal(cal.view_boxes, inst.boxes)
+    np.testing.assert_allclose(cal.offsets, np.broadcast_to(PHI - PHI.min(), cal.offsets.shape),
+                               atol=0.1)
+    assert cal.cube_shape == (HV, WV, LAM.size)
+    # Homographies: the mirror flips, to 0.3 px over the view.
+    pts = np.stack(np.meshgrid(np.linspace(0, WV - 1, 9), np.linspace(0, HV - 1, 7)),
+                   -1).reshape(-1, 2)
+    flips = {0: (), 1: (1,), 2: (1,), 3: (0,), 4: (0,)}
+    for k, v in enumerate(IDS):
+        q = pts.copy()
+        if 1 in flips[v]:
+            q[:, 0] = WV - 1 - q[:, 0]
+        if 0 in flips[v]:
+            q[:, 1] = HV - 1 - q[:, 1]
+        err = np.linalg.norm(apply_homography(cal.homographies[k], pts) - q, axis=1).max()
+        assert err < 0.3, (v, err)
+
+
+def test_calibrated_operator_reproduces_measurements(calibrated):
+    inst, cal = calibrated
+    op = operator_from_calibration(cal)
+    assert op.ishape == inst.op.ishape and op.oshape == inst.op.oshape
+    rng = np.random.default_rng(1)
+    cube = gaussian_filter(rng.random((LAM.size, HV, WV)), (0, 2.0, 2.0)).astype(np.float32)
+    frame = inst.capture(cube)
+    g = measurements(frame, cal, metadata={"design_hash": HASH}) / 1000.0
+    rel = np.linalg.norm(op.forward(cube) - g) / np.linalg.norm(g)
+    assert rel < 0.02, rel
+    # A subset of views in another order is the matching subset of the measurement.
+    sub = operator_from_calibration(cal, (2, 0))
+    np.testing.assert_allclose(sub.forward(cube), op.forward(cube)[[2, 0]], rtol=1e-5, atol=1e-6)
+    gs = measurements(frame, cal, (2, 0))
+    np.testing.assert_array_equal(gs, measurements(frame, cal)[[2, 0]])
+    assert dot_test(sub) < 1e-6
+
+
+def test_bad_inputs(calibrated):
+    inst, cal = calibrated
+    frame = np.zeros(inst.shape, dtype=np.float32)
+    with pytest.raises(InputError, match="design"):
+        measurements(frame, cal, metadata={"design_hash": "0000"})
+    with pytest.raises(InputError, match="not in the calibration"):
+        operator_from_calibration(cal, (0, 5))
+    with pytest.raises(InputError, match="smaller"):
+        measurements(frame[:50], cal)
+    with pytest.raises(InputError, match="2-D"):
+        measurements(frame[None], cal)
+    with pytest.raises(InputError, match="Calibration"):
+        operator_from_calibration({"view_ids": IDS})

@@ -1,0 +1,144 @@
+"""Calibration file: round trip, validation of every field, cache path, assembly."""
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+from recon.calibration.geometry import apply_homography
+from recon.calibration.store import (ARRAY_FIELDS, JSON_FIELDS, Calibration, build_calibration,
+                                     calibration_path, load_cached, load_calibration,
+                                     save_calibration)
+from recon.errors import InputError
+
+
+def _cal(rng, design_hash="0123abcd4567ef89"):
+    k, n_bands, hv, wm = 3, 4, 20, 30
+    phi = np.array([[-3.0, -1.0, 0.0, 2.5]] * k) + rng.uniform(-0.2, 0.2, (k, 1))
+    hb = np.stack([np.eye(3)] + [np.array([[-1, 0, wm - 1.0], [0, 1, 0.5], [0, 0, 1]])] * 2)
+    return build_calibration(
+        view_ids=(0, 1, 2), view_boxes=[(0, 40, hv, wm), (0, 0, hv, wm), (0, 80, hv, wm)],
+        box_homographies=hb, mask_images=rng.random((k, n_bands, hv, wm)),
+        wavelengths=[450.0, 500.0, 550.0, 600.0], dispersion=phi, checker_dispersion=phi[:, 2],
+        design_hash=design_hash, captures=["white.exr", "line.exr"])
+
+
+def test_build_normalises_and_sets_cube_shape():
+    rng = np.random.default_rng(0)
+    cal = _cal(rng)
+    assert cal.offsets.min() == 0.0
+    span = cal.offsets.max()
+    assert cal.cube_shape == (20, 30 - int(np.ceil(span)), 4)
+    assert cal.view_shape == cal.cube_shape[:2]
+    np.testing.assert_allclose(cal.homographies[0], np.eye(3), atol=1e-12)
+    np.testing.assert_array_equal(cal.gains, np.ones(4))
+    # View coordinates: a centre point at view column x lands in the left view's box at the
+    # flipped column, minus the left view's own offset at the checker wavelength.
+    p = np.array([[5.0, 7.0]])
+    o = cal.offsets[:, 2]
+    box = apply_homography(np.array([[-1, 0, 29.0], [0, 1, 0.5], [0, 0, 1]]), p + [o[0], 0])
+    np.testing.assert_allclose(apply_homography(cal.homographies[1], p), box - [o[1], 0])
+
+
+def test_round_trip(tmp_path):
+    rng = np.random.default_rng(1)
+    cal = _cal(rng)
+    npz, side = save_calibration(tmp_path / "cal.npz", cal)
+    assert npz.name == "cal.npz" and side.name == "cal.json"
+    back = load_calibration(tmp_path / "cal")
+    for name in ARRAY_FIELDS:
+        np.testing.assert_array_equal(getattr(back, name), getattr(cal, name))
+    assert back.mask_images.dtype == np.float32
+    for name in ("view_ids", "cube_shape", "design_hash", "captures", "created"):
+        assert getattr(back, name) == getattr(cal, name)
+    meta = json.loads(side.read_text())
+    assert set(JSON_FIELDS) <= set(meta)
+    # Nothing but the two files (no temporaries left behind).
+    assert sorted(os.listdir(tmp_path)) == ["cal.json", "cal.npz"]
+
+
+def test_cache(tmp_path):
+    rng = np.random.default_rng(2)
+    cal = _cal(rng)
+    p = calibration_path(tmp_path, cal.design_hash)
+    assert p.parent == tmp_path and cal.design_hash in p.name
+    assert load_cached(tmp_path, cal.design_hash) is None
+    save_calibration(p, cal)
+    assert load_cached(tmp_path, cal.design_hash).design_hash == cal.design_hash
+    with pytest.raises(InputError, match="plain token"):
+        calibration_path(tmp_path, "../evil")
+    # A file under one hash's name that holds another design is refused.
+    other = _cal(rng, design_hash="ffff")
+    save_calibration(calibration_path(tmp_path, "eeee"), other)
+    with pytest.raises(InputError, match="design 'ffff'"):
+        load_cached(tmp_path, "eeee")
+
+
+@pytest.mark.parametrize("missing", ARRAY_FIELDS)
+def test_missing_array_field_is_named(tmp_path, missing):
+    rng = np.random.default_rng(3)
+    cal = _cal(rng)
+    npz, _ = save_calibration(tmp_path / "cal.npz", cal)
+    with np.load(npz) as z:
+        arrays = {n: z[n] for n in z.files if n != missing}
+    np.savez(npz, **arrays)
+    with pytest.raises(InputError, match=f"missing field '{missing}'"):
+        load_calibration(npz)
+
+
+@pytest.mark.parametrize("missing", JSON_FIELDS)
+def test_missing_json_field_is_named(tmp_path, missing):
+    rng = np.random.default_rng(4)
+    npz, side = save_calibration(tmp_path / "cal.npz", _cal(rng))
+    meta = json.loads(side.read_text())
+    del meta[missing]
+    side.write_text(json.dumps(meta))
+    with pytest.raises(InputError, match=f"missing field '{missing}'"):
+        load_calibration(npz)
+
+
+def test_corrupt_files(tmp_path):
+    rng = np.random.default_rng(5)
+    cal = _cal(rng)
+    npz, side = save_calibration(tmp_path / "cal.npz", cal)
+    with pytest.raises(InputError, match="not found"):
+        load_calibration(tmp_path / "nothing.npz")
+    # Object arrays would need pickle: refused.
+    with np.load(npz) as z:
+        arrays = {n: z[n] for n in z.files}
+    arrays["gains"] = np.array([{"a": 1}] * 4, dtype=object)
+    np.savez(npz, **arrays)
+    with pytest.raises(InputError, match="not a readable calibration archive"):
+        load_calibration(npz)
+    arrays["gains"] = np.ones(5)
+    np.savez(npz, **arrays)
+    with pytest.raises(InputError, match="gains has shape"):
+        load_calibration(npz)
+    side.write_text("{not json")
+    with pytest.raises(InputError, match="JSON"):
+        load_calibration(npz)
+
+
+def test_validation():
+    rng = np.random.default_rng(6)
+    cal = _cal(rng)
+    good = {n: getattr(cal, n) for n in ARRAY_FIELDS}
+    good.update(view_ids=cal.view_ids, cube_shape=cal.cube_shape)
+    with pytest.raises(InputError, match="mask_images has 2 views"):
+        Calibration(**{**good, "mask_images": cal.mask_images[:2]})
+    with pytest.raises(InputError, match="increasing"):
+        Calibration(**{**good, "wavelengths": cal.wavelengths[::-1]})
+    with pytest.raises(InputError, match=">= 0"):
+        Calibration(**{**good, "offsets": cal.offsets - 1})
+    with pytest.raises(InputError, match="cube_shape"):
+        Calibration(**{**good, "cube_shape": (20, 25, 5)})
+    with pytest.raises(InputError, match="non-finite"):
+        h = cal.homographies.copy()
+        h[1, 0, 0] = np.inf
+        Calibration(**{**good, "homographies": h})
+    with pytest.raises(InputError, match="centre"):
+        build_calibration(view_ids=(1, 2), view_boxes=cal.view_boxes[1:],
+                          box_homographies=cal.homographies[1:], mask_images=cal.mask_images[1:],
+                          wavelengths=cal.wavelengths, dispersion=cal.offsets[1:],
+                          checker_dispersion=cal.offsets[1:, 2])
