@@ -51,7 +51,7 @@ class SceneSpec:
 
 def build_scene(design, cube_lhw: np.ndarray | None = None, wavelengths=None, *,
                 lenses: str = "thin", mask_pattern: np.ndarray | None = None,
-                max_depth: int = 64) -> SceneSpec:
+                max_depth: int = 64, pupil_fraction: float = 0.5) -> SceneSpec:
     """The instrument as a Mitsuba scene dict (no sensor: renderers add one per band/view).
 
     Parameters
@@ -68,6 +68,11 @@ def build_scene(design, cube_lhw: np.ndarray | None = None, wavelengths=None, *,
         Override ``design.mask_pattern()`` (e.g. all open).
     max_depth : int
         Path tracer depth; every mirror bounce and lens/mask/prism crossing is one vertex.
+    pupil_fraction : float
+        Air-equivalent distance from the collimator to the imaging lens's aperture (the stop),
+        in units of f_c. 1 puts the stop at the collimator's back focal plane (telecentric on
+        the mask); smaller values move the entrance pupil toward the tube's exit and reduce
+        the vignetting of the outer views by the tube (see the module notes).
     """
     mi = ensure_variant()
     from sim import diffuser, kaleidoscope, lens, mask, prism
@@ -80,14 +85,14 @@ def build_scene(design, cube_lhw: np.ndarray | None = None, wavelengths=None, *,
     fr, fc = design.relay_focal_mm, design.collimator_focal_mm
     z_relay, z_mask = a, a + b
     z_col = z_mask + fc
-    z_prism = z_col + 0.5 * fc
+    z_prism = z_col + 0.5 * pupil_fraction * fc
     N = design.imaging_f_number
     pupil = design.imaging_focal_mm / N
     half_sensor = 0.5 * np.hypot(design.sensor_width_px, design.sensor_height_px) \
         * design.sensor_pixel_um * 1e-3
     field_tan = half_sensor / design.imaging_focal_mm
     # Beam footprint at the prism (pupil plus the field's spread over f_c/2), with margin.
-    footprint = pupil + 2.0 * 0.5 * fc * field_tan
+    footprint = pupil + 2.0 * 0.5 * pupil_fraction * fc * field_tan
     grid_mask = design.grid_size * design.view_size_mask_mm
 
     scene: dict = {
@@ -111,7 +116,7 @@ def build_scene(design, cube_lhw: np.ndarray | None = None, wavelengths=None, *,
     scene["mask"] = mask.mask_shape(design, z_mask, mask_pattern)
     pmesh, exit_dir, exit_pt, entry_pt, glass_path = prism.prism_shape(
         design.prism_glass, design.prism_apex_deg, design.prism_center_nm,
-        [0.0, 0.0, z_prism], height_mm=3.0 * footprint + 10.0, depth_mm=3.0 * footprint + 10.0,
+        [0.0, 0.0, z_prism], height_mm=1.6 * footprint + 6.0, depth_mm=2.0 * footprint + 10.0,
         base_side=1.0,
     )
     scene["prism"] = pmesh
@@ -121,7 +126,7 @@ def build_scene(design, cube_lhw: np.ndarray | None = None, wavelengths=None, *,
     from sim.glass import refractive_index
 
     n_c = float(refractive_index(design.prism_glass, design.prism_center_nm))
-    left = fc - (entry_pt[2] - z_col) - glass_path / n_c
+    left = pupil_fraction * fc - (entry_pt[2] - z_col) - glass_path / n_c
     cam_pos = exit_pt + exit_dir * left
     return SceneSpec(scene=scene, camera_position=cam_pos, camera_direction=exit_dir,
                      texture=tex,

@@ -15,9 +15,9 @@ the random mask and, for the mirrored views, flipped.  For every view (box on th
 4. ``cv2.findHomography`` (least squares over all corners) from an ideal board to the view:
    :math:`B_k`.  The filled holes leave the corners jagged, and ``cornerSubPix`` is then biased
    by up to 1–2 px, so by default :math:`B_k` is refined by ECC image alignment
-   (``cv2.findTransformECC``, homography motion) of an ideal, anti-aliased board template to
-   the view, with only the open pixels as the input mask.  On synthetic masked boards this brings
-   the error from ~2 px to ~0.1 px.
+   (``cv2.findTransformECCWithMask``, homography motion) of an ideal, anti-aliased board to the
+   view, evaluated on the open pixels only (:func:`board_homography`).  On synthetic masked
+   boards this brings the error from ~2 px to ~0.1 px.
 5. :math:`H_k = B_k B_0^{-1}`: a 3×3 matrix with
    :math:`(x_k, y_k, 1)^\top \sim H_k (x_0, y_0, 1)^\top`, the convention of
    ``cv2.warpPerspective`` and of :class:`recon.operators.HomographyWarp`.
@@ -202,7 +202,9 @@ def view_homographies(checker, white, view_boxes, view_ids, pattern_size,
     images = [u[0] for u in unmasked]
     corners = np.stack([find_corners(im, pattern_size, VIEW_FLIPS[v])
                         for im, v in zip(images, ids)])
-    boards = [board_homography(im, valid, cor, pattern_size, ecc=(method == "ecc"))
+    # One ideal board for all views: B_k B_0^-1 needs a common board frame.
+    square = board_square_px(corners, pattern_size)
+    boards = [board_homography(im, valid, cor, pattern_size, square, ecc=(method == "ecc"))
               for (im, valid), cor in zip(unmasked, corners)]
     c0 = ids.index(0)
     inv0 = np.linalg.inv(boards[c0])
@@ -237,20 +239,50 @@ def board_template(pattern_size, square_px: int = 16, parity: int = 0,
     return (acc / oversample ** 2).astype(np.float32)
 
 
+def board_square_px(corners, pattern_size) -> int:
+    """Ideal-board square size: 1.3 × the median corner spacing of (K, N, 2) or (N, 2) corners.
+
+    A board sampled a little finer than the view warps well under bilinear interpolation;
+    much coarser or much finer ones alias.
+    """
+    cols, rows = int(pattern_size[0]), int(pattern_size[1])
+    grid = np.asarray(corners, dtype=np.float64).reshape(-1, rows, cols, 2)
+    spacing = np.median(np.concatenate([
+        np.linalg.norm(np.diff(grid, axis=2), axis=3).ravel(),
+        np.linalg.norm(np.diff(grid, axis=1), axis=3).ravel()]))
+    return max(8, int(round(1.3 * spacing)))
+
+
 def board_homography(img: np.ndarray, valid: np.ndarray, corners: np.ndarray, pattern_size,
-                     square_px: int = 16, ecc: bool = True) -> np.ndarray:
+                     square_px: int | None = None, ecc: bool = True) -> np.ndarray:
     r"""Homography :math:`B` from the ideal board (:func:`board_template`) to a view image.
 
     Starts from the least-squares fit to the detected ``corners`` (row-major, as from
-    :func:`find_corners`); with ``ecc`` it is refined by maximising the enhanced correlation
-    coefficient between the template and the (hole-filled) view over its open pixels
-    ``valid``.  If ECC does not converge the corner fit is returned.
+    :func:`find_corners`).  With ``ecc`` it is refined by ECC alignment
+    (``cv2.findTransformECCWithMask``, homography motion) in the direction that never
+    interpolates the masked capture: the *view* is the template, restricted to its open pixels
+    ``valid``, and the ideal board is warped onto it through :math:`B` — the correlation is
+    evaluated exactly where the mask let light through.  (Aligning the other way, or aligning
+    hole-filled images, biases :math:`B` by a few tenths of a pixel.)  If ECC does not converge
+    the corner fit is returned.
+
+    Parameters
+    ----------
+    img, valid : (h, w) arrays
+        Unmasked view and open-pixel indicator (:func:`unmask` with ``return_valid``).
+    corners : (N, 2)
+    pattern_size : (cols, rows)
+    square_px : int, optional
+        Square size of the ideal board (default :func:`board_square_px` of ``corners``).  Views
+        whose :math:`B` are combined must use the same value.
+    ecc : bool
     """
     cols, rows = int(pattern_size[0]), int(pattern_size[1])
-    s = int(square_px)
+    pts = np.asarray(corners, dtype=np.float64)
+    s = int(square_px) if square_px is not None else board_square_px(pts, pattern_size)
     gx, gy = np.meshgrid(np.arange(1, cols + 1) * s, np.arange(1, rows + 1) * s)
     ideal = np.stack([gx.ravel(), gy.ravel()], axis=1).astype(np.float64)
-    b, _ = cv2.findHomography(ideal, np.asarray(corners, dtype=np.float64), 0)
+    b, _ = cv2.findHomography(ideal, pts, 0)
     if b is None:
         raise InputError("no homography fits the detected checkerboard corners")
     b = b / b[2, 2]
@@ -260,15 +292,18 @@ def board_homography(img: np.ndarray, valid: np.ndarray, corners: np.ndarray, pa
     centres = apply_homography(b, [[0.5 * s, 0.5 * s], [1.5 * s, 0.5 * s]])
     im = np.asarray(img, dtype=np.float32)
     vals = [cv2.getRectSubPix(im, (3, 3), (float(x), float(y))).mean() for x, y in centres]
-    template = board_template(pattern_size, s, parity=0 if vals[0] > vals[1] else 1)
-    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 300, 1e-7)
+    board = board_template(pattern_size, s, parity=0 if vals[0] > vals[1] else 1)
+    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 300, 1e-8)
+    w0 = np.linalg.inv(b)
     try:
-        # gaussFiltSize 1: smoothing would mix the filled holes into the open pixels.
-        _, m = cv2.findTransformECC(template, im, b.astype(np.float32), cv2.MOTION_HOMOGRAPHY,
-                                    criteria, np.asarray(valid, dtype=np.uint8), 1)
+        # gaussFiltSize 1: smoothing would mix closed cells into the open pixels.
+        _, w = cv2.findTransformECCWithMask(im, board, np.asarray(valid, dtype=np.uint8),
+                                            np.ones(board.shape, np.uint8),
+                                            (w0 / w0[2, 2]).astype(np.float32),
+                                            cv2.MOTION_HOMOGRAPHY, criteria, 1)
     except cv2.error:
         return b
-    m = np.asarray(m, dtype=np.float64)
+    m = np.linalg.inv(np.asarray(w, dtype=np.float64))
     return m / m[2, 2]
 
 

@@ -37,6 +37,26 @@ def _corr(a, b):
     return float((a * b).sum() / np.sqrt((a * a).sum() * (b * b).sum()))
 
 
+def _best_corr(img, ref, r, c, flip, search=8):
+    """Highest correlation of ``ref`` with the (flipped) v×v cut of ``img`` at (r, c) over shifts
+    of up to ``search`` px: the prism's distortion moves the outer views by a few pixels, which
+    calibration (a homography per view) absorbs."""
+    v = ref.shape[0]
+    best = -1.0
+    for dr in range(-search, search + 1):
+        for dc in range(-search, search + 1):
+            rr, cc = r + dr, c + dc
+            if rr < 0 or cc < 0 or rr + v > img.shape[0] or cc + v > img.shape[1]:
+                continue
+            cut = img[rr:rr + v, cc:cc + v]
+            if flip == "x":
+                cut = cut[:, ::-1]
+            elif flip == "y":
+                cut = cut[::-1, :]
+            best = max(best, _corr(ref, cut))
+    return best
+
+
 def test_kaleidoscope_row_and_column_neighbours_are_mirror_images(design):
     from sim.render import render_direct
 
@@ -51,24 +71,20 @@ def test_kaleidoscope_row_and_column_neighbours_are_mirror_images(design):
     # The centre view comes out upright and unflipped (cube row 0 at the top, column 0 left).
     assert _corr(centre, _f_target(v)[:, :, 0]) > 0.97
     Hs, Ws, p = d.sensor_height_px, d.sensor_width_px, d.view_pitch_px
-    # A neighbour is the centre view reflected in the tube wall between them.
+    # A neighbour is the centre view reflected in the tube wall between them. (A corner view
+    # would be reflected twice.)
     planes = {1: ("x", Ws / 2 - p / 2), 2: ("x", Ws / 2 + p / 2),
               3: ("y", Hs / 2 - p / 2), 4: ("y", Hs / 2 + p / 2)}
     for view, (axis, plane) in planes.items():
         if axis == "x":
-            c = int(round(2 * plane - (c0 + v)))
-            cut = img[r0:r0 + v, c:c + v]
-            flipped, unflipped = cut[:, ::-1], cut
+            r, c = r0, int(round(2 * plane - (c0 + v)))
         else:
-            r = int(round(2 * plane - (r0 + v)))
-            cut = img[r:r + v, c0:c0 + v]
-            flipped, unflipped = cut[::-1, :], cut
-        assert cut.shape == centre.shape
-        assert _corr(centre, flipped) > 0.95, view
-        assert _corr(centre, unflipped) < 0.6, view
-        # The mirror loses a little light, never adds any.
-        ratio = flipped.sum() / centre.sum()
-        assert 0.75 < ratio < 1.0, (view, ratio)
+            r, c = int(round(2 * plane - (r0 + v))), c0
+        assert _best_corr(img, centre, r, c, axis) > 0.95, view
+        assert _best_corr(img, centre, r, c, None) < 0.6, view
+        # The mirror loses a little light (Al, and some vignetting by the tube), never adds any.
+        ratio = img[max(r - 8, 0):r + v + 8, max(c - 8, 0):c + v + 8].sum() / centre.sum()
+        assert 0.7 < ratio < 1.0, (view, ratio)
 
 
 def test_dispersion_shift_matches_sellmeier_prediction(design):
@@ -89,9 +105,9 @@ def test_dispersion_shift_matches_sellmeier_prediction(design):
         pos[lam] = float((prof * cols).sum() / prof.sum())
     measured = pos[650.0] - pos[475.0]
     predicted = float(d.dispersion_px_at(650.0) - d.dispersion_px_at(475.0))
-    assert abs(predicted) > 5.0  # the test is meaningful: several pixels apart
+    assert abs(predicted) > 5.0  # several pixels apart, so the check means something
     assert abs(measured - predicted) < 0.5, (measured, predicted)
-    # And each line sits where the design puts it (axis at the sensor centre + φ(λ)).
+    # Each line sits where the design puts it: axis at the sensor centre, plus φ(λ).
     for lam in (475.0, 650.0):
         expect = d.sensor_width_px / 2 + float(d.dispersion_px_at(lam))
         assert abs(pos[lam] - expect) < 0.5, (lam, pos[lam], expect)

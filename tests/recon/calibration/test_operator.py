@@ -91,8 +91,8 @@ def test_calibration_matches_the_instrument(calibrated):
     np.testing.assert_allclose(cal.offsets, np.broadcast_to(PHI - PHI.min(), cal.offsets.shape),
                                atol=0.1)
     assert cal.cube_shape == (HV, WV, LAM.size)
-    # Homographies: the mirror flips, to 0.3 px over the view.
-    pts = np.stack(np.meshgrid(np.linspace(0, WV - 1, 9), np.linspace(0, HV - 1, 7)),
+    # Homographies: the mirror flips, to 0.3 px at the board's corners (inner and outer).
+    pts = np.stack(np.meshgrid(9.5 + 12 * np.arange(10), 5.5 + 12 * np.arange(8)),
                    -1).reshape(-1, 2)
     flips = {0: (), 1: (1,), 2: (1,), 3: (0,), 4: (0,)}
     for k, v in enumerate(IDS):
