@@ -110,7 +110,8 @@ def mask_images(white_captures, view_boxes, dark=None, airy_radius=None, rl_iter
         Monochromatic captures of a uniform white target, one per band (or N repeats per band,
         averaged to lower the noise).
     view_boxes : (K, 4) array_like
-        ``y0, x0, h, w`` per view, all the same size (:func:`~recon.calibration.views.find_view_boxes`).
+        ``y0, x0, h, w`` per view, all the same size
+        (:func:`~recon.calibration.views.find_view_boxes`).
     dark : (H, W) array_like, optional
         Dark frame subtracted first.
     airy_radius : float or (L,) array_like, optional

@@ -104,7 +104,8 @@ def measurements(frame, cal: Calibration, view_ids=None, metadata: dict | None =
             raise InputError(f"dark frame shape {d.shape} != frame shape {f.shape}")
         f = f - d
     boxes = cal.view_boxes[idx]
-    if np.any(boxes[:, 0] + boxes[:, 2] > f.shape[0]) or np.any(boxes[:, 1] + boxes[:, 3] > f.shape[1]):
+    if (np.any(boxes[:, 0] + boxes[:, 2] > f.shape[0])
+            or np.any(boxes[:, 1] + boxes[:, 3] > f.shape[1])):
         raise InputError(f"frame {f.shape} is smaller than the calibrated sensor area")
     return np.ascontiguousarray(np.stack([crop(f, b) for b in boxes]), dtype=np.float32)
 

@@ -9,14 +9,15 @@ View ids follow the project order: 0 centre, 1 left, 2 right, 3 top, 4 bottom, t
 5 top-left, 6 top-right, 7 bottom-left, 8 bottom-right.  Left/right views are horizontal mirror
 images of the centre, top/bottom vertical ones, corners both (:data:`VIEW_FLIPS`).
 
-Method (projections, no per-pixel loops).  With :math:`I` the (averaged, dark-subtracted)
-white capture, the column profile :math:`p(x) = \operatorname{mean}_y I(y, x)` is about half
-the white level inside a view (random 50 % mask) and about zero outside, independent of where the
-mask holes fall; an edge is where the profile crosses a fraction (``level``) of its plateau.  Globally this gives the
-grid's row and column runs; locally (profile restricted to one grid cell) it gives each view's
-lit extent.  Views that touch (no dark gap between them on the sensor) are split into equal
-parts of the lit extent.  All boxes finally get the common size (max over views), grown
-symmetrically about their lit extent.
+Method (projections, no per-pixel loops).  With :math:`I` the dark-subtracted white capture
+(for a stack of monochromatic captures: each scaled to its bright level, then the maximum over
+the stack), the column profile :math:`p(x) = \operatorname{mean}_y I(y, x)` is about half the
+white level inside a view (random 50 % mask) and about zero outside, wherever the mask holes
+fall; an edge is where the profile crosses a fraction (``level``) of its plateau.  Globally this
+gives the grid's cells (lit runs, cut at the middle of the gaps); locally (the profile inside
+one cell) each view's lit extent.  Views that touch (no dark gap between them on the sensor)
+are split into equal parts of the lit extent.  All boxes finally get the common size (the
+largest), grown symmetrically about their lit extent.
 """
 
 from __future__ import annotations
