@@ -179,9 +179,9 @@ def spherical_lens_mesh(focal_mm: float, diameter_mm: float, n_glass: float = 1.
                 a0, b0 = r0 + j, r0 + (j + 1) % segs
                 a1, b1 = r1 + j, r1 + (j + 1) % segs
                 if sign > 0:
-                    faces += [[a0, a1, b1], [a0, b1, b0]]
+                    faces.extend([[a0, a1, b1], [a0, b1, b0]])
                 else:
-                    faces += [[a0, b1, a1], [a0, b0, b1]]
+                    faces.extend([[a0, b1, a1], [a0, b0, b1]])
         return base + 1 + (rings - 1) * segs  # first vertex of the outer ring
 
     top = cap(+1.0)
@@ -189,7 +189,7 @@ def spherical_lens_mesh(focal_mm: float, diameter_mm: float, n_glass: float = 1.
     for j in range(segs):
         a0, b0 = top + j, top + (j + 1) % segs
         a1, b1 = bot + j, bot + (j + 1) % segs
-        faces += [[a0, b0, b1], [a0, b1, a1]]
+        faces.extend([[a0, b0, b1], [a0, b1, a1]])
     mesh = trimesh.Trimesh(np.asarray(verts) + np.asarray(center, float), np.asarray(faces),
                            process=True)
     mesh.fix_normals()  # outward, as Mitsuba's dielectric expects

@@ -10,10 +10,21 @@ z (mm)                 element
 a                      relay lens, f_r (:mod:`sim.lens`); a = L + gap (1/a + 1/b = 1/f_r)
 a + b                  chrome-on-quartz mask (:mod:`sim.mask`) in the relay's image plane
 a + b + f_c            collimating lens, f_c
-a + b + f_c + f_c/2    BK-7 prism at minimum deviation (:mod:`sim.prism`), folds the axis by δ
-… + f_c/2 along δ      imaging lens + sensor (:mod:`sim.camera`), pupil at the collimator's
-                       back focal plane (a telecentric 4f relay of the mask)
+a + b + f_c + p f_c/2  BK-7 prism at minimum deviation (:mod:`sim.prism`), folds the axis by δ
+… along δ              imaging lens + sensor (:mod:`sim.camera`): its aperture (the stop) lies
+                       p·f_c (air-equivalent) behind the collimator, p = ``pupil_fraction``
 =====================  =========================================================================
+
+Where the stop goes matters for the kaleidoscope. Imaged back through the collimator and the
+relay, the stop becomes the entrance pupil seen from the diffuser; a ray bound for an outer
+virtual copy must still pass the tube's 24 mm exit, so the closer the entrance pupil is to the
+tube's exit, the less the outer views are vignetted. With the stop at the collimator's back
+focal plane (p = 1, telecentric on the mask) the entrance pupil sits at the relay's front focal
+point, 136 mm beyond the tube's exit in the ``small`` design, and the outer 20–30 px of the
+left/right views lose up to 80 % of their light; p = 0.5 (the default; the prism sits between
+collimator and stop) keeps every view's light within a few percent except at the very outer
+edges (≈ 20 % at the outermost 10 px). The paper gives no stop position; a field lens at the
+mask would remove the remaining vignetting.
 
 The plain single-view CASSI (``design.kaleidoscope = False``) is the same scene without the
 mirrors and with the relay moved so the one view fills the 3×3 grid's area

@@ -116,10 +116,23 @@ class Transport:
     w: list
     build_seconds: float = 0.0
     path: Path | None = None
+    _seg: list | None = None
+
+    def _segments(self, l: int):
+        """Distinct pixels of band l and where their runs start in the pixel-sorted entries."""
+        if self._seg is None:
+            self._seg = [None] * len(self.pix)
+        if self._seg[l] is None:
+            upix, starts = np.unique(self.pix[l], return_index=True)
+            self._seg[l] = (upix.astype(np.int64), starts.astype(np.int64))
+        return self._seg[l]
 
     def apply(self, cube: np.ndarray, bands=None, out: np.ndarray | None = None) -> np.ndarray:
-        """Per-band irradiance (L, Hs, Ws) float32 of a cube (H, W, L) on this transport."""
-        H, W = self.shape
+        """Per-band irradiance (L, Hs, Ws) float32 of a cube (H, W, L) on this transport.
+
+        E_l = A_l f_l as a gather ``f_l[tex] * w`` and a segmented sum over each pixel's run of
+        entries (the entries are sorted by pixel), float32 throughout.
+        """
         cube = np.asarray(cube, dtype=np.float32)
         Hs, Ws = self.sensor
         L = len(self.pix)
@@ -129,9 +142,10 @@ class Transport:
             if self.pix[l].size == 0:
                 continue
             band = np.ascontiguousarray(cube[:, :, l]).ravel()
-            vals = band[self.tex[l]] * self.w[l]
-            out[l].ravel()[:] = np.bincount(self.pix[l], weights=vals,
-                                            minlength=Hs * Ws).astype(np.float32)
+            vals = band[self.tex[l]]
+            vals *= self.w[l]
+            upix, starts = self._segments(l)
+            out[l].reshape(-1)[upix] = np.add.reduceat(vals, starts)
         return out
 
     def nbytes(self) -> int:

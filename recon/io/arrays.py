@@ -57,14 +57,18 @@ def check_file(path: PathLike) -> Path:
     return p
 
 
-def check_array(a, path: PathLike, *, ndim: int | Iterable[int] | None = None, what: str = "array") -> np.ndarray:
+def check_array(a, path: PathLike, *, ndim: int | Iterable[int] | None = None, what: str = "array",
+                allow_bool: bool = False) -> np.ndarray:
     """Validate a loaded array and return it as C-contiguous float32.
 
     Accepts real floating and integer dtypes (integers, e.g. 16-bit images, are converted to
-    float32 unscaled); rejects bool, complex, object and strings, NaN/Inf, empty arrays and a
-    wrong number of dimensions.
+    float32 unscaled); rejects complex, object and strings, NaN/Inf, empty arrays and a
+    wrong number of dimensions.  Bool is rejected unless ``allow_bool`` (binary masks: True =
+    open = 1.0); a boolean measurement or cube is a mistake.
     """
     a = np.asarray(a)
+    if allow_bool and a.dtype == bool:
+        a = a.astype(np.float32)
     if a.dtype == bool or not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
         raise InputError(f"{path}: {what} has dtype {a.dtype}, expected real numbers")
     if ndim is not None:
@@ -262,7 +266,8 @@ def _load_npy(p: Path) -> np.ndarray:
 # --------------------------------------------------------------------------------------------
 # public readers / writers
 # --------------------------------------------------------------------------------------------
-def read_array(path: PathLike, *, key: str | None = None, ndim: int | tuple = 2, what: str = "array") -> np.ndarray:
+def read_array(path: PathLike, *, key: str | None = None, ndim: int | tuple = 2, what: str = "array",
+               allow_bool: bool = False) -> np.ndarray:
     """Read one real array of the given dimensionality as float32.
 
     Parameters
@@ -276,6 +281,8 @@ def read_array(path: PathLike, *, key: str | None = None, ndim: int | tuple = 2,
         Accepted numbers of dimensions.
     what : str
         What the array is, for error messages (``"measurement"``, ``"mask"``).
+    allow_bool : bool
+        Accept a boolean array as 0/1 (masks); see :func:`check_array`.
     """
     p = check_file(path)
     ext = p.suffix.lower()
@@ -297,12 +304,13 @@ def read_array(path: PathLike, *, key: str | None = None, ndim: int | tuple = 2,
             raise InputError(f"{p}: {len(chans)} channels; name one with a key ({', '.join(sorted(chans))})")
     else:
         raise InputError(f"{p}: unsupported file type {ext or '(none)'}; use .npy, .npz, .mat or .exr")
-    return check_array(arr, p, ndim=ndim, what=what)
+    return check_array(arr, p, ndim=ndim, what=what, allow_bool=allow_bool)
 
 
-def read_array2d(path: PathLike, *, key: str | None = None, what: str = "array") -> np.ndarray:
+def read_array2d(path: PathLike, *, key: str | None = None, what: str = "array",
+                 allow_bool: bool = False) -> np.ndarray:
     """A 2-D float32 array (a measurement or a mask); see :func:`read_array`."""
-    return read_array(path, key=key, ndim=2, what=what)
+    return read_array(path, key=key, ndim=2, what=what, allow_bool=allow_bool)
 
 
 def write_array2d(path: PathLike, arr, *, key: str = "data", mat_version: str = "5", protect=()) -> Path:

@@ -17,7 +17,8 @@ from typing import Iterable, Iterator
 
 from recon.errors import InputError
 
-__all__ = ["atomic_path", "atomic_dir", "write_text", "check_not_input", "same_path"]
+__all__ = ["atomic_path", "atomic_dir", "write_text", "check_not_input", "check_output",
+           "same_path"]
 
 PathLike = str | os.PathLike
 
@@ -53,7 +54,43 @@ def check_not_input(out: PathLike, inputs: Iterable[PathLike | None] = ()) -> No
 def _check_parent(path: Path) -> None:
     parent = path.parent if str(path.parent) else Path(".")
     if not parent.is_dir():
+        if parent.exists() or any(p.exists() and not p.is_dir() for p in parent.parents):
+            raise InputError(f"{path}: the output folder {parent} is not a folder")
         raise InputError(f"{path}: the output folder {parent} does not exist")
+
+
+def _cannot_write(path: Path, err: OSError) -> InputError:
+    return InputError(f"{path}: cannot write here ({err.strerror or err})")
+
+
+def check_output(path: PathLike, inputs: Iterable[PathLike | None] = (), *,
+                 folder: bool = False) -> Path:
+    """Check, before any long computation, that ``path`` can be written as an output.
+
+    ``path`` must not be one of ``inputs``, its folder must exist and accept new files (probed
+    by creating and deleting an anonymous temporary file there: permission bits do not tell,
+    e.g. for root or on read-only mounts), and it must not be a folder (a file for
+    ``folder=True``).  Nothing is left behind.
+
+    Raises
+    ------
+    InputError
+        With a one-line reason naming ``path``.
+    """
+    path = Path(path)
+    check_not_input(path, inputs)
+    _check_parent(path)
+    if folder:
+        if path.exists() and not path.is_dir():
+            raise InputError(f"{path}: exists and is not a folder")
+    elif path.is_dir():
+        raise InputError(f"{path}: is a folder, expected a file name")
+    try:
+        with tempfile.TemporaryFile(dir=path.parent if str(path.parent) else "."):
+            pass
+    except OSError as err:
+        raise _cannot_write(path, err) from None
+    return path
 
 
 @contextlib.contextmanager
@@ -76,7 +113,11 @@ def atomic_path(path: PathLike, *, protect: Iterable[PathLike | None] = ()) -> I
     _check_parent(path)
     if path.is_dir():
         raise InputError(f"{path}: is a folder, expected a file name")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=f".tmp{path.suffix}", dir=path.parent)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=f".tmp{path.suffix}",
+                                   dir=path.parent)
+    except OSError as err:
+        raise _cannot_write(path, err) from None
     os.close(fd)
     tmp = Path(tmp)
     os.chmod(tmp, 0o666 & ~_UMASK)
@@ -84,6 +125,8 @@ def atomic_path(path: PathLike, *, protect: Iterable[PathLike | None] = ()) -> I
         yield tmp
         os.replace(tmp, path)
     except BaseException:
+        # An OSError of the writer (disk full, ...) propagates as it is; callers that promise
+        # one-line errors (the command line) turn it into an InputError.
         with contextlib.suppress(OSError):
             tmp.unlink()
         raise
@@ -101,7 +144,10 @@ def atomic_dir(path: PathLike, *, protect: Iterable[PathLike | None] = ()) -> It
     _check_parent(path)
     if path.exists() and not path.is_dir():
         raise InputError(f"{path}: exists and is not a folder")
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    try:
+        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    except OSError as err:
+        raise _cannot_write(path, err) from None
     os.chmod(tmp, 0o777 & ~_UMASK)
     try:
         yield tmp

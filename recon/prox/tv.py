@@ -125,39 +125,86 @@ def divergence(p: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     return out
 
 
-def tv_norm_per_band(x: np.ndarray, isotropic: bool = True) -> np.ndarray:
+def tv_norm_per_band(x: np.ndarray, isotropic: bool = True,
+                     threads: int | None = None) -> np.ndarray:
     r"""Total variation of every band (paper Eq. 7 for ``isotropic=False``).
+
+    Computed in row strips of a few tens of KiB (the cube seen as ``(L*H, W)`` rows; the
+    vertical difference of the last row of a band is zero), spread over the thread pool: no
+    cube-sized temporaries, and each strip stays in cache across its half-dozen passes.
 
     Parameters
     ----------
     x : ndarray, shape (L, H, W)
     isotropic : bool
         :math:`\sum\|\nabla x\|_2` if True, :math:`\sum\|\nabla x\|_1` if False.
+    threads : int, optional
+        Worker threads (default as :class:`TVProx`).
 
     Returns
     -------
     ndarray, shape (L,), float64
     """
-    x = _check_cube(x)
-    dy = x[:, 1:, :] - x[:, :-1, :]
-    dx = x[:, :, 1:] - x[:, :, :-1]
-    acc = np.float64
-    if isotropic:
-        # Pad to a common grid: the missing differences are zero (Neumann boundary).
-        sq = np.zeros(x.shape, dtype=x.dtype)
-        sq[:, :-1, :] = dy * dy
-        sq[:, :, :-1] += dx * dx
-        np.sqrt(sq, out=sq)
-        return sq.sum(axis=(1, 2), dtype=acc)
-    return (np.abs(dy).sum(axis=(1, 2), dtype=acc) + np.abs(dx).sum(axis=(1, 2), dtype=acc))
+    x = np.ascontiguousarray(_check_cube(x))
+    n_bands, h, w = x.shape
+    rows = x.reshape(n_bands * h, w)
+    row_tv = np.empty(n_bands * h, dtype=np.float64)
+    strip = max(1, _TV_STRIP_BYTES // max(1, w * x.itemsize))
+    n_threads = _default_threads() if threads is None else max(1, int(threads))
+    n_jobs = min(n_threads, -(-rows.shape[0] // strip))
+    edges = np.linspace(0, rows.shape[0], n_jobs + 1).round().astype(int)
+    spans = [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+    args = (rows, h, strip, bool(isotropic), row_tv)
+    if len(spans) == 1:
+        _tv_rows(*spans[0], *args)
+    else:
+        for job in [_pool(n_threads).submit(_tv_rows, a, b, *args) for a, b in spans]:
+            job.result()
+    return row_tv.reshape(n_bands, h).sum(axis=1)
 
 
-def tv_norm(x: np.ndarray, isotropic: bool = True) -> float:
+# Bytes of one strip of rows in tv_norm: with its two scratch strips it stays in L2; measured
+# at 645x501x25 (2 cores): 15 ms against 67 ms for whole-cube passes, 32 ms at 16 KiB strips.
+_TV_STRIP_BYTES = 1 << 18
+
+
+def _tv_rows(j0: int, j1: int, rows: np.ndarray, h: int, strip: int, isotropic: bool,
+             row_tv: np.ndarray) -> None:
+    r"""Per-row TV of the flat rows ``j0:j1`` of a band-major cube seen as ``(L*H, W)``."""
+    n_rows, w = rows.shape
+    dy = np.empty((strip, w), dtype=rows.dtype)
+    dx = np.empty((strip, w), dtype=rows.dtype)
+    dx[:, -1] = 0  # Neumann boundary: no difference past the last column
+    for a in range(j0, j1, strip):
+        b = min(j1, a + strip)
+        n = b - a
+        d, e = dy[:n], dx[:n]
+        # Vertical differences reach one row past the strip; the flat row after the last row
+        # of a band belongs to the next band, so those differences are zeroed.
+        m = min(b, n_rows - 1) - a
+        np.subtract(rows[a + 1:a + 1 + m], rows[a:a + m], out=d[:m])
+        d[m:] = 0
+        last = np.arange(a, b)
+        d[(last + 1) % h == 0] = 0
+        np.subtract(rows[a:b, 1:], rows[a:b, :-1], out=e[:, :-1])
+        if isotropic:
+            np.multiply(d, d, out=d)
+            np.multiply(e, e, out=e)
+            d += e
+            np.sqrt(d, out=d)
+        else:
+            np.abs(d, out=d)
+            np.abs(e, out=e)
+            d += e
+        row_tv[a:b] = d.sum(axis=1, dtype=np.float64)
+
+
+def tv_norm(x: np.ndarray, isotropic: bool = True, threads: int | None = None) -> float:
     r"""Total variation of a band-major cube, summed over bands: :math:`\sum_l \mathrm{TV}(x_l)`.
 
     See :func:`tv_norm_per_band`.
     """
-    return float(tv_norm_per_band(x, isotropic).sum())
+    return float(tv_norm_per_band(x, isotropic, threads).sum())
 
 
 def _default_threads() -> int:

@@ -82,6 +82,22 @@ def gap_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float = 0
     Returns
     -------
     SolverResult
+
+    Raises
+    ------
+    InputError
+        Bad inputs (see :func:`~recon.solvers.base.check_problem`), or an operator that is
+        zero (:math:`\Phi = 0`, e.g. an all-closed mask).
+
+    Notes
+    -----
+    With the accelerated update, ``tau`` does not fix the end point.  :math:`y_k` accumulates
+    the residuals, so the iteration moves towards a data-consistent cube (a Bregman iteration)
+    whatever ``tau``: a large ``tau`` slows the approach but does not flatten the cube, and on
+    noisy data more iterations (or more views, i.e. more rows to fit) eventually fit the noise.
+    The plain update (``accelerate=False``) has a ``tau``-dependent fixed point: as
+    ``tau`` grows it tends to a cube that is flat in every band, at the levels of the
+    :math:`\Phi^{-1}`-weighted least-squares fit.  ``tests/recon/stress`` checks both.
     """
     g, x0, dtype = check_problem(op, g, x0, iters, tau, tol)
     if int(tv_iters) < 1:
@@ -90,6 +106,11 @@ def gap_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float = 0
     phi_inv = safe_reciprocal(op.row_norms_sq(), dtype)
     if phi_inv.shape != op.oshape:
         raise InputError(f"row_norms_sq() shape {phi_inv.shape} != oshape {op.oshape}")
+    if not np.any(phi_inv):
+        # H = 0 (e.g. an all-closed mask): every f fits the data, so the answer would be the
+        # start, 0, with no warning.  TwIST and FISTA refuse this problem too.
+        raise InputError("the operator is zero (every row of H is zero, e.g. an all-closed "
+                         "mask): nothing to reconstruct")
 
     if step is None:
         step = 1.0 / preconditioned_norm_sq(op, phi_inv, dtype=dtype)

@@ -117,38 +117,50 @@ def twist(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float = 0.
     xm1 = x.copy()           # f_{t-1}
     ist = np.empty_like(x)   # Gamma(f_t)
     new = np.empty_like(x)   # two-step candidate
+    # Residuals g - H(.) of f_t, f_{t-1}, Gamma(f_t) and the candidate.  H is linear and the
+    # two-step weights sum to one, so the candidate's residual is the same combination of the
+    # others: one forward (of Gamma(f_t)) per iteration, whether the candidate is kept or not.
     misfit, resid = data_misfit(op, g, x)
-    prev_f = misfit + tau * tv_norm(x, isotropic)
+    resid_m1 = resid.copy()
+    resid_ist = np.empty_like(resid)
+    resid_new = np.empty_like(resid)
+    prev_f = misfit + tau * tv_norm(x, isotropic, threads)
     history: list[float] = []
     rejected = doublings = 0
     twist_steps = 0          # TwIST.m's TwIST_iters: 0 forces an IST step
+    c_m1, c_0 = 1.0 - alpha, alpha - beta
 
     for it in range(1, iters + 1):
         grad = op.adjoint(resid).astype(dtype, copy=False)
         ist_svd = None       # max_svd for which `ist` holds Gamma(x)
+        ist_f = None         # objective at `ist`, once computed
         tries = 0
         while True:
             if ist_svd != max_svd:
                 np.multiply(grad, 1.0 / max_svd, out=ist)
                 ist += x
                 prox(ist, tau / max_svd, tv_iters, warm=warm_dual, out=ist)
-                ist_svd = max_svd
+                resid_ist[...] = op.forward(ist)
+                np.subtract(g, resid_ist, out=resid_ist)
+                ist_svd, ist_f = max_svd, None
             if twist_steps != 0:
                 # f_{t+1} = (1-alpha) f_{t-1} + (alpha-beta) f_t + beta Gamma(f_t)
-                np.multiply(xm1, 1.0 - alpha, out=new)
-                new += (alpha - beta) * x
-                new += beta * ist
-                misfit, r_new = data_misfit(op, g, new)
-                f_val = misfit + tau * tv_norm(new, isotropic)
+                _combine(c_m1, xm1, c_0, x, beta, ist, new)
+                _combine(c_m1, resid_m1, c_0, resid, beta, resid_ist, resid_new)
+                f_val = (0.5 * float(np.vdot(resid_new, resid_new))
+                         + tau * tv_norm(new, isotropic, threads))
                 if monotone and f_val > prev_f:
                     rejected += 1
                     twist_steps = 0
                     continue
                 twist_steps += 1
                 xm1, x, new = x, new, xm1
+                resid_m1, resid, resid_new = resid, resid_new, resid_m1
                 break
-            misfit, r_new = data_misfit(op, g, ist)
-            f_val = misfit + tau * tv_norm(ist, isotropic)
+            if ist_f is None:
+                ist_f = (0.5 * float(np.vdot(resid_ist, resid_ist))
+                         + tau * tv_norm(ist, isotropic, threads))
+            f_val = ist_f
             if f_val > prev_f:
                 if tries < _MAX_DOUBLINGS:
                     max_svd *= 2.0
@@ -156,15 +168,15 @@ def twist(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float = 0.
                     tries += 1
                     continue
                 # No step decreases the objective (rounding at convergence): stay put.
-                f_val, r_new = prev_f, resid
+                f_val = prev_f
                 np.copyto(xm1, x)
+                np.copyto(resid_m1, resid)
                 twist_steps = 0
                 break
             twist_steps += 1
-            np.copyto(xm1, x)
-            x, ist = ist, x
+            xm1, x, ist = x, ist, xm1
+            resid_m1, resid, resid_ist = resid, resid_ist, resid_m1
             break
-        resid = r_new
         history.append(f_val)
         change = None
         if loop.needs_change:
@@ -178,3 +190,24 @@ def twist(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float = 0.
                         info={"max_svd": max_svd, "alpha": alpha, "beta": beta,
                               "rejected": rejected, "svd_doublings": doublings,
                               "tv_iters": int(tv_iters)})
+
+
+#: Elements per block of :func:`_combine` (a block and its scratch stay in L2 cache).
+_BLOCK = 1 << 16
+
+
+def _combine(a: float, u: np.ndarray, b: float, v: np.ndarray, c: float, w: np.ndarray,
+             out: np.ndarray) -> np.ndarray:
+    """``out = a*u + b*v + c*w`` block by block: no array-sized temporaries, and each block
+    is read once from memory (``out`` must alias none of the inputs)."""
+    uf, vf, wf, of = u.reshape(-1), v.reshape(-1), w.reshape(-1), out.reshape(-1)
+    tmp = np.empty(min(_BLOCK, of.size), dtype=out.dtype)
+    for i in range(0, of.size, _BLOCK):
+        j = min(of.size, i + _BLOCK)
+        o, t = of[i:j], tmp[:j - i]
+        np.multiply(uf[i:j], a, out=o)
+        np.multiply(vf[i:j], b, out=t)
+        o += t
+        np.multiply(wf[i:j], c, out=t)
+        o += t
+    return out
