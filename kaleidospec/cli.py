@@ -10,9 +10,7 @@ import sys
 
 import typer
 
-from kaleidospec.commands import demo, reconstruct
-from kaleidospec.commands import design
-from kaleidospec.commands import render
+from kaleidospec.commands import demo, design, reconstruct, render, run, sweep, video
 
 app = typer.Typer(
     name="kaleidospec",
@@ -21,7 +19,6 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
     add_completion=False,
 )
-
 
 
 @app.callback()
@@ -33,6 +30,9 @@ app.command("reconstruct")(reconstruct.reconstruct)
 app.add_typer(design.app, name="design")
 app.command("demo")(demo.demo)
 app.command("render")(render.render)
+app.command("run")(run.run)
+app.command("video")(video.video)
+app.add_typer(sweep.app, name="sweep")
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -313,9 +313,10 @@ def reconstruct_standard(measurement_2d, mask, step: int, n_bands: int | None = 
             f"{n_bands} bands do not fit: mask width {m.shape[1]}, measurement width {g.shape[1]} "
             f"and step {step} imply {implied}"
         )
-    m = np.asarray(m)
     if m.dtype == bool:
-        m = m.astype(np.float32)
+        m = m.astype(np.float32)  # a binary mask: True = open
+    if not (np.issubdtype(m.dtype, np.floating) or np.issubdtype(m.dtype, np.integer)):
+        raise InputError(f"mask has dtype {m.dtype}, expected real numbers (or bool)")
     if not np.all(np.isfinite(m)):
         raise InputError("mask contains NaN or Inf")
     op = standard_cassi(m, int(step), implied)

@@ -112,6 +112,11 @@ class Design:
     imaging_focal_mm: float = 50.0
     #: f/9.1 gives the paper's Airy radius 1.22·λ·N ≈ 6.1 µm ≈ 1.65 px at 550 nm.
     imaging_f_number: float = 9.1
+    #: Air-equivalent distance from the collimator to the imaging lens's aperture stop, in units
+    #: of the collimator focal length (1: stop at its back focal plane, telecentric on the mask;
+    #: smaller values move the entrance pupil toward the tube's exit and vignette the outer views
+    #: less; see :mod:`sim.scene`). The paper gives no stop position.
+    imaging_stop_fraction: float = 0.5
     # mask
     mask_pitch_um: float = 7.4
     mask_fill: float = 0.5
@@ -182,6 +187,8 @@ class Design:
                 raise InputError(f"design field {name} must be positive, got {getattr(self, name)}")
         if self.relay_gap_mm < 0 or self.read_noise_e < 0 or self.mask_seed < 0:
             raise InputError("relay_gap_mm, read_noise_e and mask_seed must not be negative")
+        if not 0.0 < self.imaging_stop_fraction <= 1.0:
+            raise InputError("imaging_stop_fraction must lie in (0, 1] (in collimator focal lengths)")
         if not 0.0 < self.diffuser_transmittance <= 1.0:
             raise InputError("diffuser_transmittance must lie in (0, 1]")
         if not 0.0 < self.mask_fill < 1.0:

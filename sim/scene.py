@@ -12,7 +12,7 @@ a + b                  chrome-on-quartz mask (:mod:`sim.mask`) in the relay's im
 a + b + f_c            collimating lens, f_c
 a + b + f_c + p f_c/2  BK-7 prism at minimum deviation (:mod:`sim.prism`), folds the axis by δ
 … along δ              imaging lens + sensor (:mod:`sim.camera`): its aperture (the stop) lies
-                       p·f_c (air-equivalent) behind the collimator, p = ``pupil_fraction``
+                       p·f_c (air-equivalent) behind the collimator, p = ``imaging_stop_fraction``
 =====================  =========================================================================
 
 Where the stop goes matters for the kaleidoscope. Imaged back through the collimator and the
@@ -62,7 +62,7 @@ class SceneSpec:
 
 def build_scene(design, cube_lhw: np.ndarray | None = None, wavelengths=None, *,
                 lenses: str = "thin", mask_pattern: np.ndarray | None = None,
-                max_depth: int = 64, pupil_fraction: float = 0.5) -> SceneSpec:
+                max_depth: int = 64, pupil_fraction: float | None = None) -> SceneSpec:
     """The instrument as a Mitsuba scene dict (no sensor: renderers add one per band/view).
 
     Parameters
@@ -79,12 +79,15 @@ def build_scene(design, cube_lhw: np.ndarray | None = None, wavelengths=None, *,
         Override ``design.mask_pattern()`` (e.g. all open).
     max_depth : int
         Path tracer depth; every mirror bounce and lens/mask/prism crossing is one vertex.
-    pupil_fraction : float
+    pupil_fraction : float, optional
         Air-equivalent distance from the collimator to the imaging lens's aperture (the stop),
         in units of f_c. 1 puts the stop at the collimator's back focal plane (telecentric on
         the mask); smaller values move the entrance pupil toward the tube's exit and reduce
-        the vignetting of the outer views by the tube (see the module notes).
+        the vignetting of the outer views by the tube (see the module notes). Default:
+        ``design.imaging_stop_fraction`` (so the stop position is part of the design hash).
     """
+    if pupil_fraction is None:
+        pupil_fraction = design.imaging_stop_fraction
     mi = ensure_variant()
     from sim import diffuser, kaleidoscope, lens, mask, prism
 

@@ -102,13 +102,18 @@ def airy_kernel(radius_px: float, oversample: int = 5, rings: float = 3.0) -> np
 
 def airy_blur(image: np.ndarray, radius_px: float) -> np.ndarray:
     """Convolve a 2-D image with :func:`airy_kernel` (zero outside the image: light that
-    leaves the sensor is lost). Returns float32 of the same shape."""
+    leaves the sensor is lost). Returns float32 of the same shape, clipped at 0 (the FFT's
+    round-off negatives are removed; a non-negative image stays non-negative)."""
     from scipy.signal import fftconvolve
 
     img = np.asarray(image, dtype=np.float32)
     if img.ndim != 2:
         raise InputError(f"airy_blur needs a 2-D image, got shape {img.shape}")
-    return fftconvolve(img, airy_kernel(radius_px), mode="same").astype(np.float32)
+    out = fftconvolve(img, airy_kernel(radius_px), mode="same").astype(np.float32)
+    # FFT convolution leaves round-off around zero (|x| ~ 1e-9 of the peak) where the image is
+    # dark; irradiance is non-negative, and the sensor model rejects negative charge.
+    np.maximum(out, 0.0, out=out)
+    return out
 
 
 def _as_cube(irradiance: np.ndarray, wavelengths) -> tuple[np.ndarray, np.ndarray]:

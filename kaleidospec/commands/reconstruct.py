@@ -1,8 +1,12 @@
 """``kaleidospec reconstruct``: a cube from a measurement file and a mask file.
 
 Standard single-view convention (MST / TSA-Net): mask H×W, band l shifted right by step·l,
-measurement H×(W + step·(L−1)).  Every input is checked before any work starts, and the output
-is written atomically, so a bad input gives one line on stderr, exit status 2 and no file.
+measurement H×(W + step·(L−1)).  Every input is checked before any work starts (the output
+location too: it must not be an input, and its folder must exist and accept files), and the
+output is written atomically, so a bad input gives one line on stderr, exit status 2 and no
+file; the inputs are only read.  A boolean mask file is read as 0/1.  Warnings (e.g. a
+measurement negative beyond read noise, see :mod:`recon.app`) are one line each on stderr,
+``kaleidospec: warning: ...``, and do not change the exit status.
 """
 
 from __future__ import annotations
@@ -55,11 +59,18 @@ def reconstruct(
     progress: bool = typer.Option(False, "--progress/--no-progress", help="Show a progress bar."),
 ) -> None:
     """Reconstruct a hyperspectral cube from a single-view CASSI measurement."""
-    from recon.app import reconstruct_standard, solver_names, standard_n_bands
+    import sys
+    import warnings
+
+    from recon.app import (NegativeMeasurementWarning, reconstruct_standard, solver_names,
+                           standard_n_bands)
     from recon.errors import InputError
     from recon.io.arrays import read_array2d
-    from recon.io.atomic import check_not_input
+    from recon.io.atomic import check_output
     from recon.io.cubes import read_cube, write_cube
+
+    def one_line_warning(message, category, filename, lineno, file=None, line=None):
+        print(f"kaleidospec: warning: {message}", file=sys.stderr)
 
     # -- everything that can be checked before the (long) solve --------------------------------
     if solver not in solver_names():
@@ -68,12 +79,10 @@ def reconstruct(
         raise InputError(f"--iters must be >= 1, got {iters}")
     if out.suffix.lower() not in OUT_SUFFIXES:
         raise InputError(f"{out}: output must end in {', '.join(OUT_SUFFIXES)}")
-    check_not_input(out, (measurement, mask, truth))
-    if not (out.parent if str(out.parent) else Path(".")).is_dir():
-        raise InputError(f"{out}: the output folder {out.parent} does not exist")
+    check_output(out, (measurement, mask, truth))
 
     g = read_array2d(measurement, key=measurement_key, what="measurement")
-    m = read_array2d(mask, key=mask_key, what="mask")
+    m = read_array2d(mask, key=mask_key, what="mask", allow_bool=True)
     if g.shape[0] != m.shape[0]:
         raise InputError(f"{measurement}: height {g.shape[0]} does not match the mask's {m.shape[0]} ({mask})")
     n_bands = standard_n_bands(m.shape[1], g.shape[1], step)
@@ -93,11 +102,17 @@ def reconstruct(
         raise InputError(f"{out}: spectral OpenEXR needs wavelengths; pass --wavelengths START:STOP:COUNT")
 
     # -- solve -----------------------------------------------------------------------------------
-    cube, info = reconstruct_standard(
-        g, m, step, n_bands, solver=solver, iters=iters, tau=tau, truth=truth_cube,
-        wavelengths=wl, progress=progress,
-    )
-    write_cube(out, cube, wl, protect=(measurement, mask, truth))
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", NegativeMeasurementWarning)
+        warnings.showwarning = one_line_warning
+        cube, info = reconstruct_standard(
+            g, m, step, n_bands, solver=solver, iters=iters, tau=tau, truth=truth_cube,
+            wavelengths=wl, progress=progress,
+        )
+    try:
+        write_cube(out, cube, wl, protect=(measurement, mask, truth))
+    except OSError as err:  # disk full, or the folder changed during the solve
+        raise InputError(f"{out}: cannot write ({err.strerror or err})") from None
 
     print(f"{solver}: {info['iters']} iterations on {cube.shape[0]}x{cube.shape[1]}x{cube.shape[2]} "
           f"in {info['wall_seconds']:.2f} s (wall)")

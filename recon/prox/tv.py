@@ -355,10 +355,20 @@ class TVProx:
             # Iterate on y = s * x = s*v - step * div p, so that grad y = s * grad x is the
             # dual step itself: no separate scaling of the gradient.
             np.multiply(v, s, out=sv)
+        w = y.shape[-1]
+        gy, gx = g[0], g[1]
+        yf, gyf, gxf = y.reshape(-1), gy.reshape(-1), gx.reshape(-1)
         for _ in range(n_iter):
-            _primal(p, sv, _STEP, y)
-            np.subtract(y[:, 1:, :], y[:, :-1, :], out=g[0, :, :-1, :])
-            np.subtract(y[:, :, 1:], y[:, :, :-1], out=g[1, :, :, :-1])
+            _div(p, y)
+            y *= -_STEP
+            y += sv
+            # Differences on the flattened chunk (contiguous passes, ~2x faster than column
+            # slices); the entries that straddle a row or band edge are the Neumann ones and
+            # are zeroed after.
+            np.subtract(yf[w:], yf[:-w], out=gyf[:-w])
+            gy[:, -1, :] = 0
+            np.subtract(yf[1:], yf[:-1], out=gxf[:-1])
+            gx[:, :, -1] = 0
             p -= g
             if self.isotropic:
                 # (p - g) / (1 + |g|); the sum of squares through einsum needs no temporary.
@@ -370,18 +380,24 @@ class TVProx:
             else:
                 np.minimum(p, 1, out=p)
                 np.maximum(p, -1, out=p)
-        _primal(p, v, weight, y)
-        np.copyto(out, y)
+        # x = v - weight * div p, written straight into `out` (which may be `v`).
+        _div(p, y)
+        y *= weight
+        np.subtract(v, y, out=out)
 
 
-def _primal(p, v, coef, out):
-    r"""``out = v - coef * div p`` (``out`` must not alias ``v``; boundary parts of p are 0)."""
+def _div(p, out):
+    r"""``out = div p`` for a chunk whose dual is zero past the Neumann boundary.
+
+    Computed on the flattened chunk: the terms that wrap to the previous row or band read
+    :math:`p^0` on a last row or :math:`p^1` on a last column, which are zero.
+    """
     py, px = p[0], p[1]
+    w = out.shape[-1]
     np.add(py, px, out=out)
-    out[:, 1:, :] -= py[:, :-1, :]
-    out[:, :, 1:] -= px[:, :, :-1]
-    out *= -coef
-    out += v
+    of, pyf, pxf = out.reshape(-1), py.reshape(-1), px.reshape(-1)
+    of[w:] -= pyf[:-w]
+    of[1:] -= pxf[:-1]
     return out
 
 

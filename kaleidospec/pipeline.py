@@ -1,0 +1,743 @@
+r"""Render, calibrate, reconstruct: the application layer, the one place that joins ``sim`` and
+``recon``.
+
+The reconstruction side sees only raw frames, their sidecars and the calibration captures, as
+with real hardware:
+
+1. :func:`calibrate` renders the calibration captures (:mod:`sim.captures`) and runs
+   :mod:`recon.calibration` on them: view boxes and per-band mask images from monochromatic
+   whites, the dispersion :math:`\varphi_k(\lambda)` from line captures, homographies from a
+   checkerboard at 550 nm, and per-band radiometric gains :math:`c_l` from the ColorChecker.
+   The result is cached by design hash (``calibration-<hash>.npz/.json`` in the cache folder).
+2. :func:`render_scene` renders a scene's raw frame and keeps its ground truth.
+3. :func:`reconstruct_views` cuts the first ``n`` views out of the frame and solves
+
+   .. math:: \hat f = \arg\min_f \tfrac12 \|g/s - H\,\mathrm{diag}(c)^{-1} f\|^2
+                       + \tau\,\mathrm{TV}(f),
+
+   with :math:`s` the frame's exposure factor (``radiance_scale`` in its sidecar), so that
+   :math:`\hat f` is in the scene cube's own units (comparable with the truth, and about
+   [0, 1], the range the solvers' default :math:`\tau` is meant for).
+
+The reconstruction grid is the calibration's: the centre view's box, with column 0 where the
+shortest band puts the view's first column, and only the part of the view that the mask codes
+(the guard stripe's columns are never measured).  :func:`truth_on_grid` moves the ground truth
+onto it (a sub-pixel translation, from the design and the calibrated box and offsets) for the
+metrics.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from recon.errors import InputError
+
+__all__ = ["VIEW_ORDER", "calibrate", "render_scene", "reconstruct_views", "oracle_operator",
+           "reconstruct_oracle", "truth_on_grid", "design_for_views", "run", "DEFAULTS"]
+
+#: View ids in the order the 1/2/3/5/9-view experiments add them.
+VIEW_ORDER = (0, 1, 2, 3, 4, 5, 6, 7, 8)
+#: Reconstruction defaults (measured on the ``small`` design, see the README / report).
+DEFAULTS = {"solver": "gap-tv", "iters": 50, "tau": None}
+#: Calibrated mask values below this (fraction of the white level) are taken as chrome (0).
+MASK_FLOOR = 0.05
+#: Views used to reconstruct the ColorChecker for the radiometric gains.
+_RADIOMETRY_VIEWS = 1
+
+
+def _cache_dir(cache_dir=None) -> Path:
+    if cache_dir is not None:
+        p = Path(cache_dir)
+        p.mkdir(parents=True, exist_ok=True)
+        return p
+    from sim.transport import cache_dir as default
+
+    return default()
+
+
+def design_for_views(design, n_views: int):
+    """``design`` with its ``views`` widened to hold the first ``n_views`` views.
+
+    The ``views`` field only says which views the simulator traces and calibration finds (the
+    optics are the same), so a 9-view run uses the same design with all nine views; its hash,
+    and so its caches, differ.
+    """
+    need = VIEW_ORDER[:int(n_views)]
+    if set(need) <= set(design.views):
+        return design
+    return design.replace(views=tuple(sorted(set(design.views) | set(need))))
+
+
+# ------------------------------------------------------------------------------- calibration
+def calibrate(design, *, cache_dir=None, progress: bool = True, force: bool = False,
+              repeats: int = 4):
+    """The calibration of ``design`` from rendered captures, cached by design hash.
+
+    Parameters
+    ----------
+    design : sim.design.Design
+    cache_dir : path, optional
+        Where ``calibration-<hash>.npz/.json`` live (default: the transport cache folder,
+        ``$KALEIDOSPEC_CACHE`` or ``~/.cache/kaleidospec``).
+    progress : bool
+        Progress bars on stderr.
+    force : bool
+        Recalibrate even if a cached calibration exists.
+    repeats : int
+        Noisy frames averaged per capture (:mod:`sim.captures`); 0 renders noise-free.
+
+    Returns
+    -------
+    recon.calibration.Calibration
+        ``view_ids`` = the design's views (sorted), gains fitted on the ColorChecker.
+    """
+    from recon.calibration import calibration_path, load_cached, save_calibration
+
+    cdir = _cache_dir(cache_dir)
+    if not force:
+        cal = load_cached(cdir, design.hash)
+        if cal is not None:
+            return cal
+    cal = calibrate_from_captures(design, repeats=repeats, progress=progress)
+    save_calibration(calibration_path(cdir, design.hash), cal)
+    return cal
+
+
+def calibrate_from_captures(design, *, repeats: int = 4, progress: bool = False, captures=None):
+    """Render the captures (unless given) and run every calibration step; nothing is cached."""
+    import dataclasses
+
+    from recon.calibration import (airy_radius_px, build_calibration, find_view_boxes,
+                                   fit_dispersion, fit_gains, line_centroids, mask_images,
+                                   patch_spectra, view_homographies)
+    from recon.calibration.mask import view_stack, white_levels
+    from sim.captures import CHECKER_NM, render_captures
+
+    if captures is None:
+        captures = render_captures(design, repeats=repeats, progress=progress)
+    caps = captures
+    ids = tuple(sorted(design.views))
+    wl = caps.wavelengths
+    steps = ["views", "dispersion", "masks", "geometry", "radiometry"]
+    bar = _bar(len(steps), "calibration", progress)
+    try:
+        boxes = find_view_boxes(caps.white, ids)
+        _tick(bar)
+        cen = line_centroids(caps.line, boxes)
+        fit = fit_dispersion(wl, cen, ref_nm=CHECKER_NM, degree=min(3, wl.size - 1))
+        _tick(bar)
+        radii = airy_radius_px(wl, design.imaging_f_number, design.sensor_pixel_um)
+        # Below ~0.75 px the Airy core stays inside one pixel: deconvolution would only add noise.
+        masks = mask_images(caps.white, boxes,
+                            airy_radius=radii if float(radii.max()) >= 0.75 else None)
+        # Chrome cells are not perfectly dark in a capture (stray light, the sensor's blur):
+        # values near zero would give measurement pixels with a tiny row norm, which GAP-TV's
+        # diag(HH^T)^-1 step amplifies without bound.  They are set to exactly zero.
+        masks = np.where(masks >= MASK_FLOOR, masks, np.float32(0.0))
+        _tick(bar)
+        hb = view_homographies(caps.checker, caps.checker_white, boxes, ids, caps.pattern_size)
+        _tick(bar)
+        # Provisional gains from the whites (radiance E = 1 per band): the mask images are the
+        # white captures divided by their white level w_l (DN at an open pixel), taken with
+        # exposure s_l, so DN/s per unit radiance at an open pixel is w_l / s_l.
+        levels = white_levels(view_stack(caps.white, boxes))
+        expo = np.array([m["radiance_scale"] for m in caps.meta["white"]], dtype=np.float64)
+        gains0 = expo / levels
+        cal = build_calibration(
+            view_ids=ids, view_boxes=boxes, box_homographies=hb, mask_images=masks,
+            wavelengths=wl, dispersion=fit(wl), checker_dispersion=fit([CHECKER_NM])[:, 0],
+            gains=gains0, design_hash=design.hash, captures=caps.names())
+        # Radiometry: reconstruct the ColorChecker with unit gains, compare its patches with
+        # their reference radiance (reflectance x D65, cube units).
+        n = min(_RADIOMETRY_VIEWS, len(ids))
+        n = max(i + 1 for i in range(n) if set(VIEW_ORDER[:i + 1]) <= set(ids))
+        cube, _ = reconstruct_views(caps.colorchecker, caps.meta["colorchecker"], cal, n,
+                                    **_solver_defaults())
+        oy, ox = grid_offset(design, cal)
+        pb = caps.patch_boxes.astype(np.float64).copy()
+        pb[:, 0] -= oy
+        pb[:, 1] -= ox
+        pb = np.round(pb).astype(np.int64)
+        # Patches that the reconstruction grid cuts (the guard stripe's columns) are left out.
+        inside = ((pb[:, 0] >= 0) & (pb[:, 1] >= 0) & (pb[:, 0] + pb[:, 2] <= cube.shape[0])
+                  & (pb[:, 1] + pb[:, 3] <= cube.shape[1]))
+        f = patch_spectra(cube, pb[inside])
+        gains = gains0 * fit_gains(f, caps.patch_radiance[inside])
+        _tick(bar)
+    finally:
+        if bar is not None:
+            bar.close()
+    if not np.all(gains > 0):
+        raise RuntimeError(f"radiometric calibration failed: gains {gains.tolist()}")
+    return dataclasses.replace(cal, gains=gains)
+
+
+def _solver_defaults():
+    return {"solver": DEFAULTS["solver"], "iters": DEFAULTS["iters"], "tau": DEFAULTS["tau"]}
+
+
+def _bar(total, desc, progress):
+    if not progress:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit="step", leave=False)
+
+
+def _tick(bar):
+    if bar is not None:
+        bar.update(1)
+
+
+# ------------------------------------------------------------------------------- scenes
+def render_scene(scene, design, *, seed: int = 0, noise: bool = True, angle_deg=None,
+                 radiance_scale=None, **scene_params):
+    """Render the raw frame of a built-in scene or a cube file.
+
+    Parameters
+    ----------
+    scene : str or path
+        A name from :func:`scenes.registry.list_scenes` or a cube file.
+    design : sim.design.Design
+    seed : int
+        Sensor noise seed.
+    noise : bool
+        Shot and read noise.
+    angle_deg : float, optional
+        Rotation of the colour wheel (``colorwheel`` only; a scene parameter).
+    radiance_scale : float, optional
+        Fixed exposure (default: auto-exposure, brightest pixel at 80 % of the full well).
+    **scene_params
+        Passed to the scene builder.
+
+    Returns
+    -------
+    frame : (Hs, Ws) float32, DN
+    metadata : dict
+        The sidecar (``design_hash``, ``radiance_scale``, ``scene``, ...).
+    truth : (v, v, L) float32
+        The scene on the centre view's grid (:func:`sim.frame.ground_truth`); see
+        :func:`truth_on_grid` for the reconstruction grid.
+    wavelengths : (L,) float64
+    """
+    from scenes.registry import get_scene
+    from sim.frame import ground_truth, simulate_frame
+
+    if angle_deg is not None:
+        scene_params["angle_deg"] = angle_deg
+    v = design.view_size_px
+    cube, wl = get_scene(str(scene), shape=(v, v), wavelengths=design.wavelengths,
+                         **scene_params)
+    frame, meta = simulate_frame(design, cube, wl, seed=seed, noise=noise,
+                                 radiance_scale=radiance_scale)
+    meta["scene"] = str(scene)
+    if scene_params:
+        meta["scene_params"] = {k: v_ for k, v_ in scene_params.items()}
+    return frame, meta, ground_truth(design, cube), wl
+
+
+# ------------------------------------------------------------------------------- grids
+def grid_offset(design, cal) -> tuple[float, float]:
+    r"""Where the reconstruction grid sits on the ground-truth grid: truth pixel
+    :math:`(y_v + o_y,\ x_v + o_x)` is reconstruction pixel :math:`(y_v, x_v)`.
+
+    The centre view's cube column :math:`x` lands, in band :math:`l`, on sensor column
+    :math:`c_0 + x + \varphi_l` (design); the calibration puts reconstruction column
+    :math:`x_v` on box column :math:`x_v + o_{0,l}`, i.e. sensor column
+    :math:`b_0 + x_v + o_{0,l}`.  So :math:`o_x = b_0 - c_0 + \overline{o_{0,l} - \varphi_l}`
+    (mean over bands), and :math:`o_y = b_{0,y} - r_0`.
+    """
+    if 0 not in cal.view_ids:
+        raise InputError("the calibration has no centre view")
+    i = cal.view_ids.index(0)
+    by, bx = (float(x) for x in cal.view_boxes[i, :2])
+    r0, c0 = design.code_region_px(0)[:2]
+    phi = design.dispersion_px_at(cal.wavelengths)
+    ox = bx - c0 + float(np.mean(cal.offsets[i] - phi))
+    return by - r0, ox
+
+
+def _design_of(metadata, design=None):
+    if design is not None:
+        return design
+    from sim.design import Design
+
+    d = (metadata or {}).get("design")
+    if not isinstance(d, dict):
+        raise InputError("the frame's sidecar has no design: cannot place the ground truth")
+    return Design.from_dict(d)
+
+
+def truth_on_grid(truth, design, cal) -> np.ndarray:
+    """The ground truth (v, v, L) resampled onto the calibration's grid ``cal.cube_shape``.
+
+    A bilinear sub-pixel translation by :func:`grid_offset`; pixels beyond the truth's edge take
+    the edge value.
+    """
+    t = np.asarray(truth, dtype=np.float32)
+    h, w, n = cal.cube_shape
+    if t.ndim != 3 or t.shape[2] != n:
+        raise InputError(f"truth shape {t.shape} does not have the calibration's {n} bands")
+    oy, ox = grid_offset(design, cal)
+    iy, ix = math.floor(oy), math.floor(ox)
+    fy, fx = np.float32(oy - iy), np.float32(ox - ix)
+    # Edge-padded so that the (h+1, w+1) window at (iy, ix) always exists.
+    pad_lo_y, pad_lo_x = max(0, -iy), max(0, -ix)
+    pad_hi_y = max(0, iy + h + 1 - t.shape[0])
+    pad_hi_x = max(0, ix + w + 1 - t.shape[1])
+    tp = np.pad(t, ((pad_lo_y, pad_hi_y), (pad_lo_x, pad_hi_x), (0, 0)), mode="edge")
+    y0, x0 = iy + pad_lo_y, ix + pad_lo_x
+    a = tp[y0:y0 + h + 1, x0:x0 + w + 1]
+    out = ((1 - fy) * ((1 - fx) * a[:h, :w] + fx * a[:h, 1:w + 1])
+           + fy * ((1 - fx) * a[1:h + 1, :w] + fx * a[1:h + 1, 1:w + 1]))
+    return np.ascontiguousarray(out, dtype=np.float32)
+
+
+# ------------------------------------------------------------------------------- reconstruction
+def _check_views(n_views) -> tuple[int, ...]:
+    try:
+        n = int(n_views)
+    except (TypeError, ValueError):
+        raise InputError(f"the number of views must be an integer 1..9, got {n_views!r}") from None
+    if n != n_views or not 1 <= n <= 9:
+        raise InputError(f"the number of views must be an integer 1..9, got {n_views!r}")
+    return VIEW_ORDER[:n]
+
+
+class WeakRowsDropped:
+    r"""Wrap an operator so that its :math:`\mathrm{diag}(HH^\top)` ignores weak rows.
+
+    A calibrated view reaches the centre grid through a bilinear homography: at the grid's edge
+    a measurement pixel may see the cube through a weight of 1e-4, so its row norm
+    :math:`\Phi_i` is ~1e-8 of the others while the pixel still holds light (from scene parts
+    outside the grid).  GAP-TV's step :math:`H^\top \Phi^{-1}(g - Hf)` multiplies that light by
+    :math:`1/\Phi_i` and diverges.  Rows with :math:`\Phi_i` below ``floor`` × the median are
+    given :math:`\Phi_i = 0` (the solvers then leave them out); forward and adjoint are
+    unchanged.
+    """
+
+    def __new__(cls, op, floor: float = 0.05):
+        from recon.operators.base import LinearOperator
+
+        class _Op(LinearOperator):
+            def __init__(self):
+                super().__init__(op.ishape, op.oshape)
+                self.inner = op
+
+            def _forward(self, x):
+                return op.forward(x)
+
+            def _adjoint(self, y):
+                return op.adjoint(y)
+
+            def row_norms_sq(self):
+                rn = np.asarray(op.row_norms_sq())
+                pos = rn[rn > 0]
+                if pos.size == 0:
+                    return rn
+                return np.where(rn >= floor * float(np.median(pos)), rn, 0).astype(rn.dtype)
+
+            def __repr__(self):
+                return f"WeakRowsDropped({op!r})"
+
+        return _Op()
+
+
+def calibrated_operator(cal, view_ids):
+    """:func:`recon.calibration.operator_from_calibration` with the gains folded in: the
+    operator maps a cube in radiance (cube) units to exposure-normalised DN."""
+    from recon.calibration.operator import _select
+    from recon.operators.calibrated import CalibratedCassi
+    from recon.operators.warp import HomographyWarp
+
+    idx = _select(cal, view_ids)
+    h, w, n_bands = cal.cube_shape
+    view_shape = cal.view_shape
+    if not np.all(cal.gains > 0):
+        raise InputError("the calibration's radiometric gains must be positive")
+    masks = cal.mask_images[idx] * (1.0 / cal.gains).astype(np.float32)[None, :, None, None]
+    warps = []
+    for i in idx:
+        m = cal.homographies[i]
+        warps.append(None if np.allclose(m, np.eye(3), atol=1e-9) and view_shape == (h, w)
+                     else HomographyWarp(m, (h, w), view_shape))
+    return WeakRowsDropped(CalibratedCassi(masks, cal.offsets[idx], warps=warps,
+                                           cube_shape=(n_bands, h, w)))
+
+
+def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = "gap-tv", iters: int = 50,
+                      tau=None, x0=None, truth=None, progress: bool = False, design=None):
+    """Reconstruct from the first ``n_views`` views of a raw frame with a calibration.
+
+    Parameters
+    ----------
+    frame : (Hs, Ws) array
+        Raw frame (DN).
+    metadata : dict
+        Its sidecar: ``design_hash`` must match the calibration's; ``radiance_scale`` (the
+        exposure factor) is divided out.
+    cal : recon.calibration.Calibration
+    n_views : int
+        1..9, views taken in the order centre, left, right, top, bottom, corners; all must be
+        in the calibration.
+    solver, iters, tau, x0, progress
+        As for :func:`recon.app.reconstruct`.
+    truth : (v, v, L) or cal.cube_shape array, optional
+        Ground truth on the design's grid (moved onto the calibration's grid with
+        :func:`truth_on_grid`, using the design in the sidecar) or already on it.
+
+    Returns
+    -------
+    cube : (H, W, L) float32, ``cal.cube_shape``, cube units
+    info : dict
+        :func:`recon.app.reconstruct`'s, plus ``view_ids``, ``seconds`` and, with a truth,
+        ``metrics`` and ``truth_grid`` (the truth on the reconstruction grid).
+    """
+    from recon.app import reconstruct
+    from recon.calibration import check_design, measurements
+
+    ids = _check_views(n_views)
+    check_design(cal, metadata)
+    missing = [v for v in ids if v not in cal.view_ids]
+    if missing:
+        raise InputError(f"view(s) {missing} missing: the calibration has views "
+                         f"{list(cal.view_ids)} (recalibrate with the views the run needs)")
+    s = float((metadata or {}).get("radiance_scale") or 1.0)
+    if not (math.isfinite(s) and s > 0):
+        raise InputError(f"the frame's radiance_scale must be positive, got {s}")
+    g = measurements(frame, cal, ids, metadata=metadata) / np.float32(s)
+    op = calibrated_operator(cal, ids)
+    tg = None
+    if truth is not None:
+        t = np.asarray(truth, dtype=np.float32)
+        tg = t if t.shape == tuple(cal.cube_shape) else \
+            truth_on_grid(t, _design_of(metadata, design), cal)
+    t0 = time.perf_counter()
+    cube, info = reconstruct(g, op, solver=solver, iters=iters, tau=tau, x0=x0, truth=tg,
+                             wavelengths=cal.wavelengths, progress=progress)
+    info["seconds"] = time.perf_counter() - t0
+    info["view_ids"] = list(ids)
+    if tg is not None:
+        info["truth_grid"] = tg
+    return cube, info
+
+
+def oracle_operator(design, n_views: int, *, inversion: bool = True):
+    """The exact operator of ``design`` on the ground-truth grid (:mod:`sim.oracle`)."""
+    from sim.oracle import oracle_operator as _op
+
+    return _op(design, n_views, inversion=inversion)
+
+
+def reconstruct_oracle(frame, metadata, design, n_views, *, solver: str = "gap-tv",
+                       iters: int = 50, tau=None, truth=None, progress: bool = False,
+                       inversion: bool = True, op=None):
+    """Reconstruct a frame with the exact operator (:func:`oracle_operator`), on the
+    ground-truth grid.  Returns ``(cube (v, v, L), info)``."""
+    from recon.app import reconstruct
+    from sim.oracle import oracle_measurements
+
+    _check_views(n_views)
+    g = oracle_measurements(frame, metadata, design, n_views)
+    if op is None:
+        op = oracle_operator(design, n_views, inversion=inversion)
+    t0 = time.perf_counter()
+    cube, info = reconstruct(g, op, solver=solver, iters=iters, tau=tau, truth=truth,
+                             wavelengths=design.wavelengths, progress=progress)
+    info["seconds"] = time.perf_counter() - t0
+    return cube, info
+
+
+# ------------------------------------------------------------------------------- run
+def parse_views(spec) -> tuple[int, ...]:
+    """``"1,2,3,5,9"`` or a sequence → sorted distinct view counts in 1..9."""
+    if isinstance(spec, str):
+        parts = [p for p in spec.replace(" ", "").split(",") if p]
+        try:
+            counts = [int(p) for p in parts]
+        except ValueError:
+            raise InputError(f"--views must be a comma-separated list of counts 1..9, got "
+                             f"{spec!r}") from None
+    else:
+        counts = [int(c) for c in spec]
+    if not counts or any(not 1 <= c <= 9 for c in counts):
+        raise InputError(f"view counts must be in 1..9, got {spec!r}")
+    return tuple(sorted(set(counts)))
+
+
+def _finite(obj):
+    if isinstance(obj, dict):
+        return {str(k): _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    if isinstance(obj, (np.floating, float)):
+        x = float(obj)
+        return x if math.isfinite(x) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    return obj
+
+
+def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = "gap-tv",
+        iters: int = 50, tau=None, seed: int = 0, progress: bool = True, cache_dir=None,
+        oracle: bool = True, figures: bool = True, raw=None, log=None) -> dict:
+    """Render ``scene``, calibrate (cached), reconstruct for every view count, write a report.
+
+    Everything is written into a fresh temporary folder beside ``out_dir`` that replaces
+    ``out_dir`` only at the end, so a failure leaves ``out_dir`` as it was.
+
+    Parameters
+    ----------
+    scene : str or path
+        Built-in scene name or cube file.
+    design : sim.design.Design
+        Widened to the views the largest count needs (:func:`design_for_views`).
+    out_dir : path
+    views : sequence of int
+        View counts (1..9).
+    solver, iters, tau, seed
+        Reconstruction settings and the sensor-noise seed.
+    oracle : bool
+        Also reconstruct with the exact operator (for the "within 1 dB" comparison).
+    figures : bool
+        Band montage and spectral plots (matplotlib).
+    raw : (frame, metadata), optional
+        Reconstruct this raw frame instead of rendering (the scene then only gives the truth).
+    log : callable, optional
+        Called with each summary line (default: nothing).
+
+    Returns
+    -------
+    dict
+        The content of ``metrics.json``.
+    """
+    from recon.io.atomic import write_text
+    from recon.io.cubes import write_cube
+    from recon.io.raw import write_raw
+    from recon.metrics import cube_to_srgb
+
+    counts = parse_views(views)
+    design = design_for_views(design, max(counts))
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError(f"{out_dir}: exists and is not a folder")
+    scene_path = Path(str(scene))
+    if scene_path.exists() and out_dir.resolve() in (scene_path.resolve(),
+                                                     *scene_path.resolve().parents):
+        raise InputError(f"{out_dir}: would overwrite the input {scene}")
+    parent = out_dir.resolve().parent
+    if not parent.is_dir():
+        raise InputError(f"{parent}: folder does not exist")
+    say = log or (lambda line: None)
+
+    # --- inputs first: the scene (a bad cube fails before any long step) ----------------------
+    t_start = time.perf_counter()
+    frame, meta, truth, wl = render_scene(scene, design, seed=seed)
+    if raw is not None:
+        frame, meta = raw
+    cal_t0 = time.perf_counter()
+    cached = _is_cached(design, cache_dir)
+    cal = calibrate(design, cache_dir=cache_dir, progress=progress)
+    cal_seconds = time.perf_counter() - cal_t0
+    from recon.calibration import check_design
+
+    check_design(cal, meta)
+    missing = [v for v in VIEW_ORDER[:max(counts)] if v not in cal.view_ids]
+    if missing:
+        raise InputError(f"view(s) {missing} missing from the calibration {list(cal.view_ids)}")
+
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.tmp-", dir=parent))
+    try:
+        write_raw(tmp / "raw.exr", frame, meta)
+        tg = truth_on_grid(truth, design, cal)
+        write_cube(tmp / "truth.exr", tg, wl)
+        rgb_truth, peak = _srgb(tg, wl)
+        _write_png(tmp / "srgb_truth.png", rgb_truth)
+        result = {
+            "scene": str(scene), "design": design.to_dict(), "design_hash": design.hash,
+            "wavelengths_nm": [float(x) for x in wl], "solver": solver, "iters": int(iters),
+            "tau": tau, "seed": int(seed), "cube_shape": list(cal.cube_shape),
+            "calibration": {"cached": cached, "seconds": cal_seconds,
+                            "view_ids": list(cal.view_ids), "gains": cal.gains.tolist()},
+            "views": {}, "oracle": {},
+        }
+        cubes = {}
+        bar = _bar(len(counts) * (2 if oracle else 1), "reconstruct", progress)
+        try:
+            for n in counts:
+                cube, info = reconstruct_views(frame, meta, cal, n, solver=solver, iters=iters,
+                                               tau=tau, truth=tg, design=design)
+                _tick(bar)
+                cubes[n] = cube
+                write_cube(tmp / f"cube_{n}views.exr", cube, wl)
+                _write_png(tmp / f"srgb_{n}views.png", _srgb(cube, wl, peak)[0])
+                result["tau"] = info["tau"]
+                result["views"][str(n)] = _entry(info, n)
+                if oracle:
+                    ocube, oinfo = reconstruct_oracle(frame, meta, design, n, solver=solver,
+                                                      iters=iters, tau=tau, truth=truth)
+                    _tick(bar)
+                    result["oracle"][str(n)] = _entry(oinfo, n)
+        finally:
+            if bar is not None:
+                bar.close()
+        if figures:
+            from recon.report import band_montage, spectra_plot
+
+            band_montage(tmp / "bands.png", tg, cubes, wl)
+            spectra_plot(tmp / "spectra.png", tg, cubes, wl, _probe_boxes(scene, design, cal))
+        result["targets"] = targets(result)
+        result["total_seconds"] = time.perf_counter() - t_start
+        write_text(tmp / "metrics.json",
+                   json.dumps(_finite(result), indent=2, allow_nan=False) + "\n")
+        _replace_dir(tmp, out_dir)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    for line in summary_lines(result):
+        say(line)
+    return result
+
+
+def _is_cached(design, cache_dir) -> bool:
+    from recon.calibration import calibration_path
+
+    return calibration_path(_cache_dir(cache_dir), design.hash).is_file()
+
+
+def _entry(info, n) -> dict:
+    m = dict(info.get("metrics", {}))
+    return {"n_views": n, "view_ids": info.get("view_ids", list(VIEW_ORDER[:n])),
+            "psnr": m.get("psnr"), "psnr_bandwise": m.get("psnr_bandwise"),
+            "ssim": m.get("ssim"), "sam_deg": m.get("sam_deg"),
+            "delta_e2000": m.get("delta_e2000"), "seconds": info.get("seconds"),
+            "iters": info.get("iters"), "tau": info.get("tau")}
+
+
+def targets(result) -> dict:
+    """The issue's targets checked on a result (``None`` where the run lacks the data)."""
+    v = result["views"]
+    ps = [(int(n), e["psnr"]) for n, e in v.items() if e["psnr"] is not None]
+    ps.sort()
+    out = {"psnr_rises_with_views": (all(b[1] > a[1] for a, b in zip(ps, ps[1:]))
+                                     if len(ps) > 1 else None)}
+    if "1" in v and "5" in v:
+        out["gain_5_vs_1_db"] = v["5"]["psnr"] - v["1"]["psnr"]
+        out["gain_5_vs_1_ge_3db"] = out["gain_5_vs_1_db"] >= 3.0
+    gaps = {n: result["oracle"][n]["psnr"] - v[n]["psnr"] for n in v
+            if n in result.get("oracle", {})}
+    if gaps:
+        out["oracle_minus_calibrated_db"] = gaps
+        out["within_1db_of_oracle"] = all(g <= 1.0 for g in gaps.values())
+    if "5" in v and v["5"].get("delta_e2000") is not None:
+        out["delta_e2000_5views"] = v["5"]["delta_e2000"]
+        if str(result["scene"]) == "colorchecker":
+            out["delta_e2000_5views_le_3"] = v["5"]["delta_e2000"] <= 3.0
+    return out
+
+
+def summary_lines(result) -> list[str]:
+    """The human summary ``kaleidospec run`` prints."""
+    lines = [f"scene {result['scene']}, design {result['design_hash']}, cube "
+             f"{'x'.join(str(x) for x in result['cube_shape'])}, {result['solver']} x"
+             f"{result['iters']} (tau {result['tau']})",
+             f"calibration: {'cached' if result['calibration']['cached'] else 'rendered'} "
+             f"({result['calibration']['seconds']:.1f} s)"]
+    head = (f"{'views':>5} {'PSNR':>7} {'PSNRb':>7} {'SSIM':>6} {'SAM':>6} {'dE00':>6} "
+            f"{'s':>6} {'oracle':>7}")
+    lines += [head, "-" * len(head)]
+    for n, e in result["views"].items():
+        o = result["oracle"].get(n, {}).get("psnr")
+
+        def f(x, fmt):
+            return format(x, fmt) if x is not None else "n/a".rjust(len(format(0.0, fmt)))
+        lines.append(f"{n:>5} {f(e['psnr'], '7.2f')} {f(e['psnr_bandwise'], '7.2f')} "
+                     f"{f(e['ssim'], '6.3f')} {f(e['sam_deg'], '6.2f')} "
+                     f"{f(e['delta_e2000'], '6.2f')} {f(e['seconds'], '6.1f')} {f(o, '7.2f')}")
+    t = result.get("targets", {})
+    bits = []
+    if t.get("psnr_rises_with_views") is not None:
+        bits.append(f"PSNR rises with views: {'yes' if t['psnr_rises_with_views'] else 'NO'}")
+    if "gain_5_vs_1_db" in t:
+        bits.append(f"5 vs 1 view: {t['gain_5_vs_1_db']:+.2f} dB "
+                    f"({'>=' if t['gain_5_vs_1_ge_3db'] else 'NOT >='} 3)")
+    if "oracle_minus_calibrated_db" in t:
+        worst = max(t["oracle_minus_calibrated_db"].values())
+        bits.append(f"oracle - calibrated: at most {worst:+.2f} dB "
+                    f"({'within' if t['within_1db_of_oracle'] else 'NOT within'} 1 dB)")
+    if "delta_e2000_5views" in t:
+        bits.append(f"CIEDE2000 (5 views): {t['delta_e2000_5views']:.2f}")
+    if bits:
+        lines.append("targets: " + "; ".join(bits))
+    return lines
+
+
+def _srgb(cube, wl, peak=None):
+    """sRGB (CIE 1931 2°, flat-white balance, γ 2.2) and the exposure used (shared with the
+    truth so that the pictures compare)."""
+    from recon.metrics import cube_to_xyz, cube_to_srgb
+
+    if peak is None:
+        peak = float(np.percentile(cube_to_xyz(cube, wl)[..., 1], 99.0))
+        if not (math.isfinite(peak) and peak > 0):
+            peak = 1.0
+    return cube_to_srgb(cube, wl, peak=peak), peak
+
+
+def _write_png(path, rgb) -> None:
+    import imageio.v3 as iio
+
+    from recon.io.atomic import atomic_path
+
+    with atomic_path(Path(path)) as tmp:
+        iio.imwrite(tmp, np.round(np.clip(rgb, 0, 1) * 255).astype(np.uint8), extension=".png")
+
+
+def _probe_boxes(scene, design, cal):
+    """A few regions (y0, x0, h, w) on the reconstruction grid for the spectral plots: six
+    ColorChecker patches, or four small squares elsewhere."""
+    h, w, _ = cal.cube_shape
+    if str(scene) == "colorchecker":
+        from scenes.colorchecker import patch_boxes
+
+        oy, ox = grid_offset(design, cal)
+        b = patch_boxes((design.view_size_px, design.view_size_px))
+        out = []
+        for k in (1, 2, 5, 13, 14, 15):     # light skin, blue sky, bluish green, R, G, B
+            r0, c0, r1, c1 = b[k]
+            y0, x0 = int(round(r0 - oy)), int(round(c0 - ox))
+            hh, ww = r1 - r0, c1 - c0
+            dy, dx = hh // 4, ww // 4
+            if y0 + dy >= 0 and x0 + dx >= 0 and y0 + hh - dy <= h and x0 + ww - dx <= w:
+                out.append((f"patch {k + 1}", (y0 + dy, x0 + dx, hh - 2 * dy, ww - 2 * dx)))
+        if out:
+            return out
+    s = max(2, min(h, w) // 12)
+    return [(f"({y}, {x})", (y, x, s, s)) for y, x in
+            ((h // 4, w // 4), (h // 4, 3 * w // 4 - s), (3 * h // 4 - s, w // 4),
+             (3 * h // 4 - s, 3 * w // 4 - s))]
+
+
+def _replace_dir(tmp: Path, out_dir: Path) -> None:
+    """Put the finished folder ``tmp`` at ``out_dir``: a rename, the old folder (if any) moved
+    aside first and removed only after the new one is in place."""
+    if out_dir.exists():
+        old = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.old-", dir=out_dir.resolve().parent))
+        os.rmdir(old)
+        os.replace(out_dir, old)
+        try:
+            os.replace(tmp, out_dir)
+        except OSError:
+            os.replace(old, out_dir)
+            raise
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        os.replace(tmp, out_dir)

@@ -1,0 +1,199 @@
+r"""The calibration captures of a design, rendered as a lab would take them (paper Sec. 4.1–4.2).
+
+Each capture is a raw frame (DN, float32) plus a JSON-ready sidecar (the one
+:func:`sim.frame.simulate_frame` writes: ``design_hash``, ``monochromatic_nm``, ``exposure_ms``,
+``radiance_scale``, ...) extended with ``target`` (what was in front of the instrument),
+``repeats`` and, for the checkerboard and the ColorChecker, the target's geometry a lab knows
+from the target's datasheet (``pattern_size``; the patch reference radiances).
+
+=================  ======================================================================
+``white``          uniform white, monochromatic at every band centre (L frames)
+``line``           a 1-px bright vertical line, monochromatic at every band centre (L frames)
+``checker``        a checkerboard at 550 nm (``CHECKER_NM``), with a quiet white margin
+``checker_white``  the uniform white at 550 nm (the checkerboard's flat field)
+``colorchecker``   the 24-patch ColorChecker under D65, full spectrum (box band sampling, like
+                   a scene frame), with the patches' reference radiances
+=================  ======================================================================
+
+Noise.  Captures are taken with the sensor's shot and read noise and, as in a lab, ``repeats``
+frames of each are averaged (the mean of N frames: noise / √N).  With the transport cache an
+extra frame costs a sensor draw (milliseconds), so the default of 4 repeats adds about a
+second.  ``repeats=0`` renders noise-free frames instead (exact expectation, quantised).
+
+Exposure.  Every capture is auto-exposed (brightest pixel at 80 % of the full well); the
+``radiance_scale`` in its sidecar is the exposure factor (radiance units per cube unit), which
+the calibration divides out so that all captures and scene frames share one radiometric scale.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from recon.errors import InputError
+
+__all__ = ["CHECKER_NM", "Captures", "checker_target", "render_captures", "capture"]
+
+#: Wavelength of the geometric (checkerboard) capture, nm.
+CHECKER_NM = 550.0
+
+
+def checker_target(design, wavelengths=None):
+    r"""The checkerboard cube on the centre view's grid and its inner-corner count.
+
+    :math:`(c+1) \times (r+1)` squares of side :math:`s = \lfloor v / 12 \rfloor` centred on the
+    :math:`v \times v` grid, surrounded by a white quiet zone (OpenCV finds a board only when it
+    does not touch the image edge), white 0.9, black 0.05.  The board is 7 × 7 inner corners; it
+    spans 8 squares, i.e. :math:`8 s \approx 2v/3`, so every view's code region (the view minus
+    the guard stripe) holds it whole.
+
+    Returns
+    -------
+    cube : (v, v, L) float32
+    pattern_size : (cols, rows)
+        Inner corners per row and column (OpenCV's ``patternSize``).
+    """
+    from sim.spectra import illuminant
+
+    wl = design.wavelengths if wavelengths is None else np.asarray(wavelengths, np.float64)
+    v = design.view_size_px
+    s = v // 12
+    if s < 4:
+        raise InputError(f"views of {v} px are too small for a checkerboard calibration")
+    n = 8
+    y0 = (v - n * s) // 2
+    x0 = (v - n * s) // 2
+    refl = np.full((v, v), 0.9, dtype=np.float32)
+    yy, xx = np.mgrid[0:n * s, 0:n * s]
+    board = ((yy // s + xx // s) % 2 == 0)
+    refl[y0:y0 + n * s, x0:x0 + n * s] = np.where(board, 0.9, 0.05)
+    cube = refl[:, :, None] * illuminant("E", wl).astype(np.float32)[None, None, :]
+    return np.ascontiguousarray(cube, dtype=np.float32), (n - 1, n - 1)
+
+
+@dataclass
+class Captures:
+    """Every calibration capture of one design (frames (…, Hs, Ws) float32 DN, sidecars)."""
+
+    design_hash: str
+    wavelengths: np.ndarray            # (L,) band centres of the white/line stacks
+    white: np.ndarray                  # (L, Hs, Ws)
+    line: np.ndarray                   # (L, Hs, Ws)
+    checker: np.ndarray                # (Hs, Ws) at CHECKER_NM
+    checker_white: np.ndarray          # (Hs, Ws) at CHECKER_NM
+    colorchecker: np.ndarray           # (Hs, Ws) full spectrum
+    pattern_size: tuple
+    #: (24, L) reference radiance of every patch (reflectance × D65, cube units).
+    patch_radiance: np.ndarray
+    #: Patch boxes (24, 4) = y0, x0, h, w on the centre view's grid (the chart's layout).
+    patch_boxes: np.ndarray
+    meta: dict = field(default_factory=dict)   # name -> sidecar (white/line: list per band)
+
+    def names(self) -> list[str]:
+        """Capture names recorded in the calibration file."""
+        return [f"white@{w:g}nm" for w in self.wavelengths] + \
+               [f"line@{w:g}nm" for w in self.wavelengths] + \
+               [f"checker@{CHECKER_NM:g}nm", f"white@{CHECKER_NM:g}nm", "colorchecker"]
+
+
+def capture(design, cube, wavelengths, *, wavelength_nm=None, repeats: int = 4, seed: int = 0,
+            target: str = "", sampling: str = "box"):
+    r"""One capture: the mean of ``repeats`` noisy frames (or one noise-free frame if 0).
+
+    Returns
+    -------
+    frame : (Hs, Ws) float32, DN
+    meta : dict
+        :func:`sim.frame.simulate_frame`'s sidecar plus ``target`` and ``repeats``.
+    """
+    from sim.frame import simulate_frame
+
+    if repeats < 0:
+        raise InputError(f"repeats must be >= 0, got {repeats}")
+    if repeats == 0:
+        frame, meta = simulate_frame(design, cube, wavelengths, wavelength_nm=wavelength_nm,
+                                     noise=False, seed=seed, sampling=sampling)
+    else:
+        frame, meta = simulate_frame(design, cube, wavelengths, wavelength_nm=wavelength_nm,
+                                     noise=True, seed=seed, sampling=sampling)
+        acc = frame.astype(np.float64)
+        for r in range(1, repeats):
+            # Same exposure for every repeat (the lab does not re-expose between frames).
+            f, _ = simulate_frame(design, cube, wavelengths, wavelength_nm=wavelength_nm,
+                                  noise=True, seed=seed + r, sampling=sampling,
+                                  radiance_scale=meta["radiance_scale"])
+            acc += f
+        frame = (acc / repeats).astype(np.float32)
+    meta = dict(meta, target=target, repeats=int(repeats))
+    return frame, meta
+
+
+def render_captures(design, *, repeats: int = 4, seed: int = 1000, progress: bool = False
+                    ) -> Captures:
+    """Render every calibration capture of ``design`` (see the module docstring).
+
+    The targets are cubes on the centre view's grid (``view_size_px`` square), the same shape
+    as the scenes of :func:`kaleidospec.pipeline.render_scene`, so the transport caches are
+    shared.  ``seed`` seeds the sensor noise (each capture its own seeds).
+    """
+    from scenes.calibration import line, white
+    from scenes.colorchecker import colorchecker, patch_boxes
+
+    wl = design.wavelengths
+    v = design.view_size_px
+    shape = (v, v)
+    white_cube = white(shape, wl)
+    line_cube = line(shape, wl, width=1)
+    checker_cube, pattern = checker_target(design, wl)
+    cc_cube = colorchecker(shape, wl, illuminant="D65")
+
+    steps = [("white", l) for l in range(wl.size)] + [("line", l) for l in range(wl.size)] + \
+            [("checker", None), ("checker_white", None), ("colorchecker", None)]
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(steps), desc="calibration captures", unit="capture", leave=False)
+    whites, lines = [], []
+    meta: dict = {"white": [], "line": []}
+    out = {}
+    try:
+        for i, (name, l) in enumerate(steps):
+            s = seed + 101 * i
+            if name == "white":
+                f, m = capture(design, white_cube, wl, wavelength_nm=wl[l], repeats=repeats,
+                               seed=s, target="white")
+                whites.append(f), meta["white"].append(m)
+            elif name == "line":
+                f, m = capture(design, line_cube, wl, wavelength_nm=wl[l], repeats=repeats,
+                               seed=s, target="line")
+                lines.append(f), meta["line"].append(m)
+            elif name == "checker":
+                f, m = capture(design, checker_cube, wl, wavelength_nm=CHECKER_NM,
+                               repeats=repeats, seed=s, target="checkerboard")
+                m["pattern_size"] = list(pattern)
+                out["checker"], meta["checker"] = f, m
+            elif name == "checker_white":
+                f, m = capture(design, white_cube, wl, wavelength_nm=CHECKER_NM,
+                               repeats=repeats, seed=s, target="white")
+                out["checker_white"], meta["checker_white"] = f, m
+            else:
+                f, m = capture(design, cc_cube, wl, repeats=repeats, seed=s,
+                               target="colorchecker")
+                out["colorchecker"], meta["colorchecker"] = f, m
+            if bar is not None:
+                bar.update(1)
+    finally:
+        if bar is not None:
+            bar.close()
+
+    b = patch_boxes(shape)                         # row0, col0, row1, col1
+    boxes = np.stack([b[:, 0], b[:, 1], b[:, 2] - b[:, 0], b[:, 3] - b[:, 1]], axis=1)
+    radiance = np.stack([cc_cube[r0 + (r1 - r0) // 2, c0 + (c1 - c0) // 2]
+                         for r0, c0, r1, c1 in b]).astype(np.float64)
+    return Captures(design_hash=design.hash, wavelengths=wl.copy(),
+                    white=np.stack(whites), line=np.stack(lines), checker=out["checker"],
+                    checker_white=out["checker_white"], colorchecker=out["colorchecker"],
+                    pattern_size=tuple(pattern), patch_radiance=radiance,
+                    patch_boxes=boxes.astype(np.int64), meta=meta)

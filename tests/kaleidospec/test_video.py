@@ -1,0 +1,348 @@
+"""The video engine: rendering from the cache, warm starts, segments, resume, outputs, CLI.
+
+The reconstruction tests use a small synthetic calibration (two views, 32×32×4, random
+per-band mask images) and frames made with its own operator, so they need neither Mitsuba nor
+the calibration renders; the rendering tests use a reduced design and a temporary
+``KALEIDOSPEC_CACHE``.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from recon.errors import InputError
+from recon.io.cubes import read_cube, write_cube
+from recon.io.raw import write_raw
+from recon.metrics import psnr
+
+H = W = 32
+L = 4
+WL = np.array([450.0, 525.0, 600.0, 675.0])
+N_FRAMES = 4
+
+
+# ------------------------------------------------------------------ a synthetic instrument
+def _calibration():
+    from recon.calibration.store import Calibration
+
+    rng = np.random.default_rng(3)
+    offsets = np.array([[0, 1, 2, 3], [3, 2, 1, 0]], np.float64)
+    wm = W + 3
+    masks = (rng.random((2, L, H, wm)) < 0.5).astype(np.float32)
+    return Calibration(view_ids=(0, 1), view_boxes=[[0, 0, H, wm], [H + 4, 0, H, wm]],
+                       homographies=np.stack([np.eye(3)] * 2), mask_images=masks,
+                       offsets=offsets, gains=np.ones(L), wavelengths=WL, cube_shape=(H, W, L))
+
+
+def _truth(i):
+    """A bright square moving 1 px per frame over a smooth background."""
+    y, x = np.mgrid[0:H, 0:W] / H
+    c = np.empty((H, W, L), np.float32)
+    for l in range(L):
+        c[:, :, l] = 0.2 + 0.2 * x * (l + 1) / L + 0.1 * y
+    c[8:18, 6 + i:16 + i, :] += np.linspace(0.6, 0.2, L)[None, None, :]
+    return c
+
+
+@pytest.fixture
+def sequence(tmp_path):
+    """A rendered sequence (raw frames + truth) of the synthetic instrument and its settings."""
+    from kaleidospec.pipeline import calibrated_operator
+    from kaleidospec.video import VideoLayout
+    from recon.calibration import save_calibration
+
+    cal = _calibration()
+    cal_path = tmp_path / "cal.npz"
+    save_calibration(cal_path, cal)
+    op = calibrated_operator(cal, (0, 1))
+    out = tmp_path / "video"
+    lay = VideoLayout(out)
+    lay.make()
+    rng = np.random.default_rng(0)
+    for i in range(N_FRAMES):
+        t = _truth(i)
+        g = op.forward(np.ascontiguousarray(np.moveaxis(t, 2, 0)))
+        g += rng.normal(0, 0.003, g.shape).astype(np.float32)
+        frame = np.zeros((2 * H + 4, W + 3), np.float32)
+        frame[:H] = g[0]
+        frame[H + 4:] = g[1]
+        write_cube(lay.truth(i), t, WL)
+        write_raw(lay.raw(i), frame, {"radiance_scale": 1.0, "time_s": i / 10})
+    settings = {"calibration": str(cal_path), "views": 2, "solver": "gap-tv", "iters": 10,
+                "cold_iters": 40, "tau": 0.02, "mu": 0.0, "animation": None,
+                "wavelengths": WL.tolist()}
+    return out, cal, settings
+
+
+def _frame_problem(out, cal, i):
+    from kaleidospec.video import SegmentReconstructor, VideoLayout
+    from recon.io.raw import read_raw
+
+    rec = SegmentReconstructor(cal, 2, tau=0.02)
+    frame, meta = read_raw(VideoLayout(out).raw(i))
+    return rec, rec.measurement(frame, meta), _truth(i)
+
+
+def _iters_to_reach(rec, g, truth, target, x0=None, cap=200):
+    """Iterations until the PSNR first reaches ``target`` (cap + 1 if never)."""
+    truth_bm = np.moveaxis(truth, 2, 0)
+    hit = []
+
+    def cb(it, x, info):
+        if psnr(np.moveaxis(x, 0, 2), truth) >= target:
+            hit.append(it)
+            return True
+        return None
+    del truth_bm
+    rec.solve(g, iters=cap, x0=x0, callback=cb)
+    return hit[0] if hit else cap + 1
+
+
+def test_warm_start_needs_fewer_iterations_for_the_same_accuracy(sequence):
+    out, cal, _ = sequence
+    rec, g0, t0 = _frame_problem(out, cal, 0)
+    prev, _ = rec.solve(g0, iters=40)
+    _, g1, t1 = _frame_problem(out, cal, 1)
+    cold50, _ = rec.solve(g1, iters=50)
+    target = psnr(cold50, t1) - 0.5
+    n_warm = _iters_to_reach(rec, g1, t1, target, x0=prev)
+    n_cold = _iters_to_reach(rec, g1, t1, target)
+    assert n_warm < n_cold <= 50
+    assert n_warm <= 0.5 * n_cold
+    # With the engine's default warm budget the warm frame is within 0.5 dB of cold × 50.
+    warm10, info = rec.solve(g1, iters=10, x0=prev)
+    assert info["iters"] == 10 and psnr(warm10, t1) >= target
+
+
+def test_segment_resumes_without_redoing_finished_frames(sequence):
+    from kaleidospec.video import VideoLayout, reconstruct_sequence
+
+    out, _, settings = sequence
+    lay = VideoLayout(out)
+    r = reconstruct_sequence(out, N_FRAMES, [[0, N_FRAMES]], settings, workers=1,
+                             progress=False)
+    assert r["done"] == N_FRAMES and r["backend"] == "serial"
+    stamp = {i: (lay.cube(i).stat().st_mtime_ns, lay.metrics(i).stat().st_mtime_ns)
+             for i in range(N_FRAMES)}
+    first = {i: read_cube(lay.cube(i))[0] for i in range(N_FRAMES)}
+    m = [json.loads(lay.metrics(i).read_text()) for i in range(N_FRAMES)]
+    assert [x["warm"] for x in m] == [False, True, True, True]
+    assert [x["iters"] for x in m] == [40, 10, 10, 10]
+    assert all(x["psnr"] > 25 for x in m)
+
+    # An interrupted run: frame 2 lost its metrics (its marker), frame 3 its cube.
+    lay.metrics(2).unlink()
+    lay.cube(3).unlink()
+    r = reconstruct_sequence(out, N_FRAMES, [[0, N_FRAMES]], settings, workers=1,
+                             progress=False)
+    assert r["done"] == 2 and r["skipped"] == 2
+    for i in (0, 1):
+        assert (lay.cube(i).stat().st_mtime_ns, lay.metrics(i).stat().st_mtime_ns) == stamp[i]
+    for i in (2, 3):
+        assert lay.reconstructed(i)
+        # The warm start read back from disk gives the very same frames.
+        np.testing.assert_array_equal(read_cube(lay.cube(i))[0], first[i])
+    # Nothing half-written is left behind.
+    assert not [p for p in out.rglob(".*")]
+    # A third run has nothing to do.
+    assert reconstruct_sequence(out, N_FRAMES, [[0, N_FRAMES]], settings, workers=1,
+                                progress=False)["done"] == 0
+
+
+def test_parallel_segments_match_serial(sequence, tmp_path):
+    import shutil
+
+    from kaleidospec.video import VideoLayout, reconstruct_sequence
+
+    out, _, settings = sequence
+    other = tmp_path / "copy"
+    shutil.copytree(out, other)
+    segs = [[0, 2], [2, 4]]
+    a = reconstruct_sequence(out, N_FRAMES, segs, settings, workers=1, progress=False)
+    b = reconstruct_sequence(other, N_FRAMES, segs, settings, workers=2, progress=False)
+    assert a["backend"] == "serial" and b["backend"] == "processes" and b["workers"] == 2
+    la, lb = VideoLayout(out), VideoLayout(other)
+    for i in range(N_FRAMES):
+        np.testing.assert_array_equal(read_cube(la.cube(i))[0], read_cube(lb.cube(i))[0])
+    warm = [json.loads(lb.metrics(i).read_text())["warm"] for i in range(N_FRAMES)]
+    assert warm == [False, True, False, True]  # each segment starts cold
+
+
+def test_summary_and_video(sequence):
+    import imageio.v3 as iio
+
+    from kaleidospec.video import reconstruct_sequence, write_summary, write_video
+
+    out, _, settings = sequence
+    reconstruct_sequence(out, N_FRAMES, [[0, N_FRAMES]], settings, workers=1, progress=False)
+    s = write_summary(out, N_FRAMES)
+    data = json.loads((out / "metrics.json").read_text())
+    assert s["frames"] == N_FRAMES == len(data["frames"])
+    assert s["mean_psnr"] == pytest.approx(np.mean([f["psnr"] for f in data["frames"]]))
+    rows = (out / "metrics.csv").read_text().strip().splitlines()
+    assert len(rows) == N_FRAMES + 1 and rows[0].startswith("frame,")
+    path = write_video(out, N_FRAMES, 10, WL)
+    frames = iio.imread(path, index=None)
+    assert frames.shape[0] == N_FRAMES and frames.shape[1:3] == (H, 2 * W)
+
+
+def test_temporal_term():
+    from recon.operators import kaleidoscope_cassi
+    from recon.solvers import solve
+    from recon.temporal import gap_tv_temporal, temporal_prox
+
+    v = np.array([0.0, 0.5, 1.0, -1.0], np.float32)
+    r = np.array([0.1, 0.0, 0.0, 0.0], np.float32)
+    np.testing.assert_allclose(temporal_prox(v, r, 0.2), [0.1, 0.3, 0.8, -0.8], atol=1e-7)
+    np.testing.assert_array_equal(temporal_prox(v, r, 0.0), v)
+
+    rng = np.random.default_rng(1)
+    op = kaleidoscope_cassi((rng.random((2, H, W)) < 0.5).astype(np.float32), [0, 1, 2, 3], 2)
+    t0, t1 = (np.ascontiguousarray(np.moveaxis(_truth(i), 2, 0)) for i in (0, 1))
+    g = op.forward(t1) + rng.normal(0, 0.01, op.oshape).astype(np.float32)
+    # mu = 0 is GAP-TV itself.
+    a = gap_tv_temporal(op, g, ref=t0, mu=0.0, iters=8, tau=0.05, step=0.5).x
+    b = solve("gap-tv", op, g, iters=8, tau=0.05, x0=t0, step=0.5).x
+    np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
+    # A large mu keeps the reference wherever the change is small.
+    c = gap_tv_temporal(op, g, ref=t0, mu=10.0, iters=8, tau=0.05, step=0.5).x
+    np.testing.assert_allclose(c, t0, atol=1e-6)
+    with pytest.raises(InputError):
+        gap_tv_temporal(op, g, ref=t0[:, :5], mu=0.1)
+
+
+# ------------------------------------------------------------------ rendering (Mitsuba)
+TINY = {"sensor_pixel_um": 40, "sensor_width_px": 300, "sensor_height_px": 240,
+        "mask_pitch_um": 80, "band_step_nm": 50}
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    pytest.importorskip("mitsuba")
+    import os
+
+    from sim import transport
+    from sim.design import get_design
+
+    old = os.environ.get("KALEIDOSPEC_CACHE")
+    os.environ["KALEIDOSPEC_CACHE"] = str(tmp_path_factory.mktemp("cache"))
+    transport._MEMO.clear()
+    yield get_design("small", TINY)
+    transport._MEMO.clear()
+    if old is None:
+        os.environ.pop("KALEIDOSPEC_CACHE", None)
+    else:
+        os.environ["KALEIDOSPEC_CACHE"] = old
+
+
+@pytest.mark.mitsuba
+def test_renderer_matches_simulate_frame_and_never_retraces(tiny):
+    from kaleidospec.video import FrameRenderer
+    from scenes.animated import RotatingColorwheel
+    from sim import transport
+    from sim.frame import simulate_frame
+
+    v = tiny.view_size_px
+    anim = RotatingColorwheel((v, v), tiny.wavelengths, n_frames=3, speed_deg_s=45)
+    r = FrameRenderer(tiny, (v, v), tiny.wavelengths)
+    traced = transport.STATS["traced_bands"]
+    cube = anim.frame(1)
+    s = r.exposure_for(cube)
+    ref, meta = simulate_frame(tiny, cube, tiny.wavelengths, noise=False)
+    assert s == pytest.approx(meta["radiance_scale"], rel=1e-5)
+    mine = r.render(cube, radiance_scale=s, noise=False)
+    # Same model; float32 sums in another order may round a count the other way.
+    assert np.abs(mine - ref).max() <= 1 and np.mean(mine == ref) > 0.99
+    for i in range(3):
+        r.render(anim.frame(i), radiance_scale=s, seed=[0, i])
+    assert transport.STATS["traced_bands"] == traced  # only gathers after the first build
+    noisy = [r.render(cube, radiance_scale=s, seed=[0, k]) for k in (1, 1, 2)]
+    np.testing.assert_array_equal(noisy[0], noisy[1])
+    assert not np.array_equal(noisy[0], noisy[2])
+
+
+@pytest.mark.mitsuba
+def test_render_sequence_resumes(tiny, tmp_path):
+    from kaleidospec.video import FrameRenderer, VideoLayout, render_sequence
+    from recon.io.raw import read_raw
+    from scenes.animated import RotatingColorwheel
+
+    v = tiny.view_size_px
+    anim = RotatingColorwheel((v, v), tiny.wavelengths, n_frames=3, speed_deg_s=45)
+    r = FrameRenderer(tiny, (v, v), tiny.wavelengths)
+    s = r.exposure_for(anim.frame(0))
+    out = tmp_path / "v"
+    st = render_sequence(anim, tiny, out, radiance_scale=s, renderer=r, progress=False)
+    assert st["rendered"] == 3 and st["skipped"] == 0
+    lay = VideoLayout(out)
+    stamp = {i: lay.raw(i).stat().st_mtime_ns for i in range(3)}
+    frame1, meta1 = read_raw(lay.raw(1))
+    assert meta1["frame"] == 1 and meta1["time_s"] == pytest.approx(0.1)
+    assert meta1["radiance_scale"] == s and meta1["design_hash"] == tiny.hash
+    lay.raw_sidecar(1).unlink()  # interrupted between the image and its sidecar
+    st = render_sequence(anim, tiny, out, radiance_scale=s, renderer=r, progress=False)
+    assert st["rendered"] == 1 and st["skipped"] == 2
+    assert lay.raw(0).stat().st_mtime_ns == stamp[0]
+    assert lay.raw(2).stat().st_mtime_ns == stamp[2]
+    again, _ = read_raw(lay.raw(1))
+    np.testing.assert_array_equal(again, frame1)  # same seed [seed, frame]
+    assert not [p for p in out.rglob(".*")]
+
+
+# ------------------------------------------------------------------ bad input
+def _cli(argv, capsys):
+    from kaleidospec.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    out, err = capsys.readouterr()
+    return exc.value.code, out, err
+
+
+def test_cli_bad_cube_folders_exit_2(tmp_path, capsys):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    shapes = tmp_path / "shapes"
+    shapes.mkdir()
+    np.savez(shapes / "a.npz", cube=np.ones((8, 8, 6), np.float32), wavelengths=np.arange(6) * 50 + 450.0)
+    np.savez(shapes / "b.npz", cube=np.ones((9, 8, 6), np.float32), wavelengths=np.arange(6) * 50 + 450.0)
+    nan = tmp_path / "nan"
+    nan.mkdir()
+    c = np.ones((8, 8, 6), np.float32)
+    c[0, 0, 0] = np.inf
+    np.savez(nan / "a.npz", cube=c, wavelengths=np.arange(6) * 50 + 450.0)
+    for folder, msg in ((empty, "no cube files"), (shapes, "shape"), (nan, "NaN|non-finite")):
+        out = tmp_path / f"out_{folder.name}"
+        code, stdout, err = _cli(["video", "--scene", str(folder), "--out", str(out),
+                                  "--no-progress"], capsys)
+        assert code == 2, err
+        assert err.startswith("kaleidospec: error:") and len(err.strip().splitlines()) == 1
+        import re
+
+        assert re.search(msg, err)
+        assert not out.exists()
+
+
+def test_cli_bad_options_exit_2(tmp_path, capsys):
+    base = ["video", "--scene", "colorwheel", "--out", str(tmp_path / "o"), "--no-progress"]
+    for extra in (["--fps", "20"],            # 100 ms exposure > 50 ms frame period
+                  ["--views", "0"], ["--iters", "0"], ["--solver", "nope"],
+                  ["--temporal", "-1"], ["--scheduler", "localhost:1"], ["--format", "mp4"],
+                  ["--param", "spin=2"], ["--frames", "0"]):
+        code, _, err = _cli(base + extra, capsys)
+        assert code == 2, (extra, err)
+        assert len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "o").exists()
+
+
+def test_other_settings_in_the_same_folder_are_refused(tmp_path):
+    from kaleidospec.video import run_video
+
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "video.json").write_text(json.dumps({"config": {"scene": "moving_object"}}))
+    with pytest.raises(InputError, match="other settings"):
+        run_video("colorwheel", out, frames=2, progress=False)

@@ -1,0 +1,303 @@
+r"""Image regression: a fresh render and a fresh reconstruction against the stored goldens.
+
+The goldens in ``tests/golden/`` are a noise-free raw frame of a reduced ``small`` design
+(:data:`OVERRIDES`: a 300×240 sensor of 40 µm pixels, 80 µm mask cells, 6 bands; 78 px views)
+showing the ``natural`` scene, and its reconstruction from five views through the product path
+(calibration from rendered captures, :func:`kaleidospec.pipeline.reconstruct_views`).
+Regenerate them on purpose, after a change that is meant to alter the images, with::
+
+    python3 tools/regen_golden.py
+
+Tolerances (:func:`compare_frames`).  The render is deterministic (the transport is traced with
+a fixed seed), so on one machine a fresh frame equals the golden exactly.  Elsewhere float
+rounding (another CPU's vector width, another drjit/NumPy) can change the fate of a Monte Carlo
+sample: a ray that grazes a mask-cell edge or a texel boundary lands on the other side.  Each
+pixel is the mean of :math:`S` samples (``spp``), so one such flip moves a pixel by about one
+sample's share, at most :math:`M/S` for the brightest pixel value :math:`M`, and flips are rare.
+Hence three checks, with 1 DN for the ADC's rounding:
+
+1. every pixel: :math:`|\Delta| \le 1 + M/S` (no pixel moves by more than one sample's share);
+2. rare flips: at most 2 % of the lit pixels move by more than :math:`1 + 0.01 M`;
+3. block means over 8×8 pixels: :math:`|\bar\Delta| \le 0.5 + M/(64 S)` (at most one flipped
+   sample's worth per block, so a smooth radiometric change cannot hide below check 1).
+
+Measured on this design (``spp`` = 4): perturbing the geometry at float level (relay gap or
+apex ×(1 + 10⁻⁶ … 10⁻⁵)) moves 0.03–0.7 % of the pixels past check 2's threshold, by at most
+0.064 M, with block means within 0.0013 M; a 0.2° apex change moves 7 % of them, a different
+mask seed 78 %; a 1 % change of exposure or diffuser transmittance moves block means by
+0.006 M (> 1/256 M).  The perturbed designs in :func:`test_comparison_catches_a_changed_design`
+show in the test itself that the checks fail on a real change.
+
+Reconstruction (:func:`compare_reconstructions`): the fresh cube must agree with the golden
+cube to ≥ 40 dB PSNR (peak = golden maximum), and its PSNR against the truth must be within
+0.25 dB of the golden's.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+GOLDEN_DIR = Path(__file__).resolve().parent / "golden"
+FRAME_FILE = "frame.npz"
+RECON_FILE = "recon.npz"
+META_FILE = "golden.json"
+
+SCENE = "natural"
+#: The ``small`` preset further reduced so that tracing, calibrating and solving take seconds.
+OVERRIDES = {"sensor_width_px": 376, "sensor_height_px": 300, "sensor_pixel_um": 32.0,
+             "mask_pitch_um": 64.0, "band_step_nm": 50.0}
+SEED = 0
+N_VIEWS = 5
+SOLVER = "gap-tv"
+ITERS = 30
+
+#: Check 2 of :func:`compare_frames`: fraction of lit pixels allowed to move past 1 DN + 1 % M.
+FLIP_FRACTION = 0.02
+FLIP_LEVEL = 0.01
+BLOCK = 8
+#: :func:`compare_reconstructions`: agreement with the golden cube, and PSNR drift vs truth.
+RECON_MIN_PSNR_DB = 40.0
+RECON_MAX_DRIFT_DB = 0.25
+
+
+# ------------------------------------------------------------------------- producing the images
+def golden_design(**changes):
+    """The golden design: ``small`` with :data:`OVERRIDES` (and ``changes``)."""
+    from sim.design import get_design
+
+    return get_design("small", {**OVERRIDES, **changes})
+
+
+def render(design):
+    """Noise-free raw frame of :data:`SCENE` → ``(frame, metadata, truth, wavelengths)``."""
+    from kaleidospec import pipeline
+
+    return pipeline.render_scene(SCENE, design, seed=SEED, noise=False)
+
+
+def reconstruct(frame, meta, design, truth, *, iters: int = ITERS, tau=None):
+    """Calibrate ``design`` (cached in ``$KALEIDOSPEC_CACHE``) and reconstruct ``N_VIEWS`` views.
+
+    Returns ``(cube, truth on the reconstruction grid, info)``."""
+    from kaleidospec import pipeline
+
+    cal = pipeline.calibrate(design, progress=False)
+    cube, info = pipeline.reconstruct_views(frame, meta, cal, N_VIEWS, solver=SOLVER,
+                                            iters=iters, tau=tau, truth=truth, design=design)
+    return cube, info["truth_grid"], info
+
+
+def produce():
+    """Everything the goldens hold, freshly computed: a dict of arrays and metadata."""
+    d = golden_design()
+    frame, meta, truth, wl = render(d)
+    cube, grid, info = reconstruct(frame, meta, d, truth)
+    from recon.metrics import psnr
+
+    return {"design": d, "frame": frame, "meta": meta, "truth_grid": grid, "cube": cube,
+            "wavelengths": np.asarray(wl, np.float64), "psnr_truth": psnr(cube, grid),
+            "tau": info.get("tau")}
+
+
+# ------------------------------------------------------------------------- the comparisons
+def _blocks(x: np.ndarray, b: int) -> np.ndarray:
+    h, w = (x.shape[0] // b) * b, (x.shape[1] // b) * b
+    return x[:h, :w].reshape(h // b, b, w // b, b).mean(axis=(1, 3))
+
+
+def compare_frames(fresh, golden, spp: int) -> list[str]:
+    """The reasons ``fresh`` differs from ``golden`` beyond float and Monte Carlo differences
+    (empty list: they agree).  See the module notes for the three checks."""
+    a = np.asarray(fresh, np.float64)
+    g = np.asarray(golden, np.float64)
+    if a.shape != g.shape:
+        return [f"frame shape {a.shape} != golden {g.shape}"]
+    if not np.all(np.isfinite(a)):
+        return ["the fresh frame has non-finite values"]
+    d = a - g
+    M = float(g.max())
+    if M <= 0:
+        return ["the golden frame is black"]
+    out = []
+    worst = float(np.abs(d).max())
+    if worst > 1.0 + M / spp:
+        out.append(f"a pixel moved by {worst:.1f} DN > 1 + M/S = {1.0 + M / spp:.1f} DN")
+    lit = (a > 0) | (g > 0)
+    frac = float(np.mean(np.abs(d[lit]) > 1.0 + FLIP_LEVEL * M)) if lit.any() else 0.0
+    if frac > FLIP_FRACTION:
+        out.append(f"{100 * frac:.2f} % of lit pixels moved by > {1.0 + FLIP_LEVEL * M:.1f} DN "
+                   f"(at most {100 * FLIP_FRACTION:g} % allowed)")
+    bd = float(np.abs(_blocks(d, BLOCK)).max())
+    lim = 0.5 + M / (BLOCK * BLOCK * spp)
+    if bd > lim:
+        out.append(f"a {BLOCK}×{BLOCK} block mean moved by {bd:.2f} DN > {lim:.2f} DN")
+    return out
+
+
+def compare_reconstructions(fresh, golden, truth, golden_psnr: float) -> list[str]:
+    """The reasons a fresh reconstruction differs from the golden one (empty: they agree)."""
+    from recon.metrics import psnr
+
+    a = np.asarray(fresh, np.float32)
+    g = np.asarray(golden, np.float32)
+    if a.shape != g.shape:
+        return [f"cube shape {a.shape} != golden {g.shape}"]
+    out = []
+    agree = psnr(a, g)
+    if not agree >= RECON_MIN_PSNR_DB:
+        out.append(f"PSNR against the golden cube {agree:.2f} dB < {RECON_MIN_PSNR_DB:g} dB")
+    p = psnr(a, truth)
+    if not abs(p - golden_psnr) <= RECON_MAX_DRIFT_DB:
+        out.append(f"PSNR against the truth {p:.3f} dB, golden {golden_psnr:.3f} dB "
+                   f"(> {RECON_MAX_DRIFT_DB:g} dB apart)")
+    return out
+
+
+# ------------------------------------------------------------------------- golden files
+def write_goldens(folder: Path = GOLDEN_DIR) -> list[Path]:
+    """Compute and write the goldens into ``folder`` (atomically, file by file)."""
+    import drjit
+    import mitsuba
+
+    from recon.io.atomic import atomic_path, write_text
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    p = produce()
+    frame = p["frame"]
+    # Noise-free frames are whole DN in [0, 4095]: uint16 stores them exactly and compresses.
+    if not np.array_equal(frame, np.rint(frame)) or frame.min() < 0 or frame.max() > 65535:
+        raise RuntimeError("the golden frame is not in whole DN")
+    with atomic_path(folder / FRAME_FILE) as tmp:
+        np.savez_compressed(tmp, frame=frame.astype(np.uint16))
+    with atomic_path(folder / RECON_FILE) as tmp:
+        np.savez_compressed(tmp, cube=p["cube"].astype(np.float32),
+                            truth=p["truth_grid"].astype(np.float32),
+                            wavelengths=p["wavelengths"])
+    d = p["design"]
+    meta = {
+        "what": "golden raw frame and reconstruction for tests/test_golden.py",
+        "regenerate": "python3 tools/regen_golden.py",
+        "scene": SCENE, "preset": "small", "overrides": OVERRIDES, "design": d.to_dict(),
+        "design_hash": d.hash, "seed": SEED, "noise": False, "spp": int(p["meta"]["spp"]),
+        "radiance_scale": p["meta"]["radiance_scale"], "n_views": N_VIEWS, "solver": SOLVER,
+        "iters": ITERS, "tau": p["tau"], "psnr_truth_db": p["psnr_truth"],
+        "frame_max_dn": float(frame.max()),
+        "versions": {"numpy": np.__version__, "mitsuba": mitsuba.__version__,
+                     "drjit": drjit.__version__},
+    }
+    write_text(folder / META_FILE, json.dumps(meta, indent=2, sort_keys=True) + "\n")
+    return [folder / FRAME_FILE, folder / RECON_FILE, folder / META_FILE]
+
+
+def load_goldens(folder: Path = GOLDEN_DIR) -> dict:
+    folder = Path(folder)
+    meta = json.loads((folder / META_FILE).read_text(encoding="utf-8"))
+    with np.load(folder / FRAME_FILE, allow_pickle=False) as z:
+        frame = z["frame"].astype(np.float32)
+    with np.load(folder / RECON_FILE, allow_pickle=False) as z:
+        cube, truth, wl = z["cube"], z["truth"], z["wavelengths"]
+    return {"meta": meta, "frame": frame, "cube": cube, "truth": truth, "wavelengths": wl}
+
+
+# ------------------------------------------------------------------------- the tests
+pytestmark = pytest.mark.mitsuba
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory):
+    """A fresh, empty cache folder for the whole module (nothing reused from earlier runs)."""
+    pytest.importorskip("mitsuba")
+    from sim.variant import ensure_variant
+
+    try:
+        ensure_variant()
+    except Exception as err:  # no usable LLVM for drjit on this machine
+        pytest.skip(f"Mitsuba's spectral variant is not usable here: {err}")
+    path = tmp_path_factory.mktemp("kaleidospec-cache")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("KALEIDOSPEC_CACHE", str(path))
+        yield path
+
+
+@pytest.fixture(scope="module")
+def golden():
+    if not (GOLDEN_DIR / META_FILE).is_file():
+        pytest.fail("no goldens in tests/golden/: run python3 tools/regen_golden.py")
+    return load_goldens()
+
+
+@pytest.fixture(scope="module")
+def fresh(cache):
+    d = golden_design()
+    frame, meta, truth, wl = render(d)
+    return {"design": d, "frame": frame, "meta": meta, "truth": truth, "wavelengths": wl}
+
+
+@pytest.fixture(scope="module")
+def fresh_recon(fresh):
+    return reconstruct(fresh["frame"], fresh["meta"], fresh["design"], fresh["truth"])
+
+
+def test_goldens_are_of_the_golden_design(golden):
+    d = golden_design()
+    assert golden["meta"]["design_hash"] == d.hash, (
+        "the golden design changed (a design default or the overrides); if intended, "
+        "regenerate with: python3 tools/regen_golden.py")
+    assert golden["frame"].shape == (d.sensor_height_px, d.sensor_width_px)
+
+
+def test_fresh_render_matches_the_golden_frame(golden, fresh):
+    assert fresh["meta"]["noise"] is False
+    problems = compare_frames(fresh["frame"], golden["frame"], golden["meta"]["spp"])
+    assert not problems, "; ".join(problems) + " (regenerate on purpose: tools/regen_golden.py)"
+
+
+def test_render_is_deterministic(fresh):
+    """Rendering again (transport now in memory) gives the identical frame."""
+    frame, _, _, _ = render(fresh["design"])
+    assert np.array_equal(frame, fresh["frame"])
+
+
+def test_fresh_reconstruction_matches_the_golden(golden, fresh_recon):
+    cube, grid, _ = fresh_recon
+    assert np.allclose(grid, golden["truth"], atol=1e-5 * float(golden["truth"].max())), \
+        "the truth on the reconstruction grid moved (grid offset or scene changed)"
+    problems = compare_reconstructions(cube, golden["cube"], golden["truth"],
+                                       golden["meta"]["psnr_truth_db"])
+    assert not problems, "; ".join(problems) + " (regenerate on purpose: tools/regen_golden.py)"
+
+
+@pytest.mark.parametrize("change", [{"prism_apex_deg": 30.5}, {"mask_seed": 1}],
+                         ids=["apex+0.5deg", "mask-seed"])
+def test_comparison_catches_a_changed_design(golden, fresh, change):
+    """A real change of the instrument must fail :func:`compare_frames` (while the unchanged
+    fresh render passes it, see above)."""
+    frame, _, _, _ = render(golden_design(**change))
+    assert compare_frames(frame, golden["frame"], golden["meta"]["spp"])
+
+
+def test_comparison_catches_a_changed_reconstruction(golden, fresh, fresh_recon):
+    """Stopping the solver early (a real change of the reconstruction) fails the comparison."""
+    cube, grid, _ = reconstruct(fresh["frame"], fresh["meta"], fresh["design"], fresh["truth"],
+                                iters=ITERS // 3)
+    assert compare_reconstructions(cube, golden["cube"], golden["truth"],
+                                   golden["meta"]["psnr_truth_db"])
+
+
+def test_comparison_tolerates_a_flipped_sample(golden):
+    """Float-level noise within the derived tolerances passes: one sample's share added to a
+    few isolated pixels and ±1 DN of rounding everywhere."""
+    g = golden["frame"]
+    spp = golden["meta"]["spp"]
+    rng = np.random.default_rng(0)
+    a = g + rng.integers(-1, 2, size=g.shape).astype(np.float32)
+    # At most one flip per block (one pixel in every other 8×8 block), as check 3 assumes.
+    sparse = np.zeros(g.shape, dtype=bool)
+    sparse[BLOCK // 2::2 * BLOCK, BLOCK // 2::2 * BLOCK] = True
+    a[sparse & (g > 0)] += float(g.max()) / spp
+    assert compare_frames(np.clip(a, 0, None), g, spp) == []
