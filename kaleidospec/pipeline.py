@@ -312,25 +312,38 @@ def _check_views(n_views) -> tuple[int, ...]:
     return VIEW_ORDER[:n]
 
 
-class WeakRowsDropped:
-    r"""Wrap an operator so that its :math:`\mathrm{diag}(HH^\top)` ignores weak rows.
+class RowSelected:
+    r"""An operator whose :math:`\mathrm{diag}(HH^\top)` is zero on rows it cannot model.
 
-    A calibrated view reaches the centre grid through a bilinear homography: at the grid's edge
-    a measurement pixel may see the cube through a weight of 1e-4, so its row norm
-    :math:`\Phi_i` is ~1e-8 of the others while the pixel still holds light (from scene parts
-    outside the grid).  GAP-TV's step :math:`H^\top \Phi^{-1}(g - Hf)` multiplies that light by
-    :math:`1/\Phi_i` and diverges.  Rows with :math:`\Phi_i` below ``floor`` × the median are
-    given :math:`\Phi_i = 0` (the solvers then leave them out); forward and adjoint are
-    unchanged.
+    A view's box on the sensor also holds light of scene parts outside the reconstruction grid
+    (the centre view's coded region): a mirrored view codes the columns that lie under the
+    centre's guard stripe, and its dispersed light of the grid's edge columns lands beyond the
+    view-image width of the calibrated model.  A measurement pixel where *some* bands come from
+    outside the grid is only partly modelled; GAP-TV's step
+    :math:`H^\top \Phi^{-1}(g - Hf)` would push that unmodelled light into the other bands
+    (measured: every extra mirrored view then *lowered* the PSNR).  A pixel is kept when the
+    model's response to a cube of ones reaches ``complete`` of the sum of its mask values over
+    the bands (every band that lights it comes from inside the grid) and its row norm is at
+    least ``floor`` × the median; otherwise :math:`\Phi_i = 0` and the solvers leave it out.
+    Forward and adjoint are unchanged.
     """
 
-    def __new__(cls, op, floor: float = 0.05):
+    def __new__(cls, op, full, complete: float = 0.98, floor: float = 0.05):
         from recon.operators.base import LinearOperator
+
+        got = op.forward(np.ones(op.ishape, dtype=np.float32))
+        full = np.asarray(full, dtype=np.float32)
+        keep = (full > 0) & (got >= complete * full)
+        rn0 = np.asarray(op.row_norms_sq())
+        pos = rn0[rn0 > 0]
+        if pos.size:
+            keep &= rn0 >= floor * float(np.median(pos))
 
         class _Op(LinearOperator):
             def __init__(self):
                 super().__init__(op.ishape, op.oshape)
                 self.inner = op
+                self.kept = keep
 
             def _forward(self, x):
                 return op.forward(x)
@@ -339,14 +352,10 @@ class WeakRowsDropped:
                 return op.adjoint(y)
 
             def row_norms_sq(self):
-                rn = np.asarray(op.row_norms_sq())
-                pos = rn[rn > 0]
-                if pos.size == 0:
-                    return rn
-                return np.where(rn >= floor * float(np.median(pos)), rn, 0).astype(rn.dtype)
+                return np.where(keep, rn0, 0).astype(rn0.dtype)
 
             def __repr__(self):
-                return f"WeakRowsDropped({op!r})"
+                return f"RowSelected({op!r}, {keep.mean():.0%} rows)"
 
         return _Op()
 
@@ -369,8 +378,8 @@ def calibrated_operator(cal, view_ids):
         m = cal.homographies[i]
         warps.append(None if np.allclose(m, np.eye(3), atol=1e-9) and view_shape == (h, w)
                      else HomographyWarp(m, (h, w), view_shape))
-    return WeakRowsDropped(CalibratedCassi(masks, cal.offsets[idx], warps=warps,
-                                           cube_shape=(n_bands, h, w)))
+    op = CalibratedCassi(masks, cal.offsets[idx], warps=warps, cube_shape=(n_bands, h, w))
+    return RowSelected(op, masks.sum(axis=1))
 
 
 def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = "gap-tv", iters: int = 50,
@@ -488,7 +497,8 @@ def _finite(obj):
 
 def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = "gap-tv",
         iters: int = 50, tau=None, seed: int = 0, progress: bool = True, cache_dir=None,
-        oracle: bool = True, figures: bool = True, raw=None, log=None) -> dict:
+        oracle: bool = True, figures: bool = True, raw=None, widen: bool = True,
+        log=None) -> dict:
     """Render ``scene``, calibrate (cached), reconstruct for every view count, write a report.
 
     Everything is written into a fresh temporary folder beside ``out_dir`` that replaces
@@ -510,7 +520,11 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = "gap-tv"
     figures : bool
         Band montage and spectral plots (matplotlib).
     raw : (frame, metadata), optional
-        Reconstruct this raw frame instead of rendering (the scene then only gives the truth).
+        Reconstruct this raw frame instead of rendering (the scene then only gives the truth);
+        its ``design_hash`` must match ``design``'s calibration.
+    widen : bool
+        Widen the design to the views the largest count needs (:func:`design_for_views`);
+        ``False`` keeps it, and a count needing views it lacks is an error.
     log : callable, optional
         Called with each summary line (default: nothing).
 
@@ -525,7 +539,8 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = "gap-tv"
     from recon.metrics import cube_to_srgb
 
     counts = parse_views(views)
-    design = design_for_views(design, max(counts))
+    if widen:
+        design = design_for_views(design, max(counts))
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError(f"{out_dir}: exists and is not a folder")
@@ -543,6 +558,15 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = "gap-tv"
     frame, meta, truth, wl = render_scene(scene, design, seed=seed)
     if raw is not None:
         frame, meta = raw
+        if meta.get("design_hash") not in (None, design.hash):
+            raise InputError(f"raw frame was taken with design {meta.get('design_hash')}, but "
+                             f"the calibration is for design {design.hash}")
+        if np.shape(frame) != (design.sensor_height_px, design.sensor_width_px):
+            raise InputError(f"raw frame shape {np.shape(frame)} is not the design's sensor")
+    missing = [v for v in VIEW_ORDER[:max(counts)] if v not in design.views]
+    if missing:
+        raise InputError(f"view(s) {missing} missing: the design traces views "
+                         f"{list(design.views)}, {max(counts)} views need {list(VIEW_ORDER[:max(counts)])}")
     cal_t0 = time.perf_counter()
     cached = _is_cached(design, cache_dir)
     cal = calibrate(design, cache_dir=cache_dir, progress=progress)

@@ -78,7 +78,7 @@ SWEEPS: dict[str, tuple[str, str, str]] = {
     "prism-apex": ("prism_apex_deg", "°", "prism apex angle"),
 }
 #: Bumped when what a point computes changes, so old stored results are not reused.
-MEASURE_VERSION = 1
+MEASURE_VERSION = 2
 #: The dispersion span the paper asks for over the pass band (px).
 TARGET_SPAN_PX = 60.0
 
@@ -628,6 +628,7 @@ def plot_sweep(rows: list[dict], path, settings: SweepSettings) -> Path:
             ax.axvspan(b - 0.4 * step, b + 0.4 * step, color="0.85", lw=0)
         if x.min() - step <= paper <= x.max() + step:
             ax.axvline(paper, color="k", lw=0.8, ls="-.", label=f"paper ({paper:g}{unit})")
+        ax.set_xlim(x.min() - step, x.max() + step)
         ax.set_title(title, fontsize=10)
         ax.set_xlabel(f"{SWEEPS[settings.kind][2]} ({unit})")
         ax.grid(alpha=0.3)

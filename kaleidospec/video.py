@@ -295,52 +295,101 @@ def render_sequence(anim, design, out_dir, *, radiance_scale: float, seed: int =
 # reconstruction of one frame and of a segment
 # ---------------------------------------------------------------------------------------------
 class SegmentReconstructor:
-    r"""The calibrated operator of some views, built once and reused for every frame.
+    r"""One frame's inverse problem, set up once per segment and reused for every frame.
 
-    The same problem as :func:`kaleidospec.pipeline.reconstruct_views` (operator
-    :func:`kaleidospec.pipeline.calibrated_operator`, measurement over ``radiance_scale``), but
-    the operator and GAP-TV's step :math:`1/\lVert\Phi^{-1/2}H\rVert^2` are computed once.
+    Two kinds (constructors):
+
+    - :meth:`calibrated` — what the instrument does: the problem of
+      :func:`kaleidospec.pipeline.reconstruct_views` (operator
+      :func:`kaleidospec.pipeline.calibrated_operator`, gains folded in; the measurement over
+      the frame's ``radiance_scale``), on the calibration's grid;
+    - :meth:`oracle` — the exact operator of the design
+      (:func:`kaleidospec.pipeline.oracle_operator`) on the ground-truth grid, to separate the
+      engine's behaviour from calibration errors.
+
+    Either way the operator and GAP-TV's step :math:`1/\lVert\Phi^{-1/2}H\rVert^2` are
+    computed once, not per frame.
 
     Parameters
     ----------
-    cal : recon.calibration.Calibration
-    n_views : int
-        The first ``n_views`` of the calibration's views (centre, left, right, top, bottom).
+    op : LinearOperator
+        ``(L, H, W) -> (K, Hv, Wm)``.
+    measure : callable
+        ``measure(frame, metadata) -> g`` (K, Hv, Wm) float32.
     solver : str
         A :mod:`recon.solvers` name.
     tau : float, optional
         TV weight (the solver's default if None).
     threads : int, optional
         Threads of the TV prox (GAP-TV and the temporal variant).
+    to_grid : callable, optional
+        ``to_grid(truth (v, v, L), metadata) -> truth on the operator's grid``.
+    offset : callable, optional
+        ``offset(metadata) -> (oy, ox)``: where the operator's grid sits on the truth's.
     """
 
-    def __init__(self, cal, n_views: int, *, solver: str = "gap-tv", tau: float | None = None,
-                 threads: int | None = None):
-        from kaleidospec.pipeline import _check_views, calibrated_operator
+    def __init__(self, op, measure, *, solver: str = "gap-tv", tau: float | None = None,
+                 threads: int | None = None, to_grid=None, offset=None, kind: str = ""):
         from recon.app import default_tau
+
+        self.op = op
+        self._measure = measure
+        self.solver = solver
+        self.tau = default_tau(solver) if tau is None else float(tau)
+        self.threads = threads
+        self._to_grid = to_grid
+        self._offset = offset
+        self.kind = kind
+        self._step = None
+
+    @classmethod
+    def calibrated(cls, cal, n_views: int, **kw) -> "SegmentReconstructor":
+        """From a calibration: the first ``n_views`` views (centre, left, right, top, ...)."""
+        from kaleidospec.pipeline import (_check_views, _design_of, calibrated_operator,
+                                          grid_offset, truth_on_grid)
 
         ids = _check_views(n_views)
         missing = [v for v in ids if v not in cal.view_ids]
         if missing:
             raise InputError(f"view(s) {missing} missing: the calibration has views "
                              f"{list(cal.view_ids)}")
-        self.cal = cal
-        self.view_ids = ids
         # Gains folded into the masks: the cube comes out in the scene's radiance units.
-        self.op = calibrated_operator(cal, ids)
-        self.solver = solver
-        self.tau = default_tau(solver) if tau is None else float(tau)
-        self.threads = threads
-        self._step = None
+        op = calibrated_operator(cal, ids)
+        return cls(op, lambda frame, meta: _frame_measurement(frame, meta, cal, ids),
+                   to_grid=lambda t, meta: truth_on_grid(t, _design_of(meta), cal),
+                   offset=lambda meta: grid_offset(_design_of(meta), cal), kind="calibrated",
+                   **kw)
+
+    @classmethod
+    def oracle(cls, design, n_views: int, **kw) -> "SegmentReconstructor":
+        """The exact operator of ``design`` (on the ground-truth grid)."""
+        from kaleidospec.pipeline import oracle_operator
+        from sim.oracle import oracle_measurements
+
+        op = oracle_operator(design, n_views)
+        return cls(op, lambda frame, meta: oracle_measurements(frame, meta, design, n_views),
+                   kind="oracle", **kw)
 
     def measurement(self, frame, metadata) -> np.ndarray:
-        """The (K, Hv, Wm) measurement divided by the frame's exposure factor (as
-        :func:`kaleidospec.pipeline.reconstruct_views`)."""
-        return _frame_measurement(frame, metadata, self.cal, self.view_ids)
+        """The (K, Hv, Wm) measurement in the operator's units."""
+        return self._measure(frame, metadata)
+
+    def truth_on_grid(self, truth, metadata) -> np.ndarray:
+        """The ground truth (v, v, L) on the reconstruction grid."""
+        t = np.asarray(truth, np.float32)
+        want = (self.op.ishape[1], self.op.ishape[2], self.op.ishape[0])
+        if t.shape == want or self._to_grid is None:
+            return t
+        return self._to_grid(t, metadata)
+
+    def grid_offset(self, metadata) -> tuple[float, float]:
+        """(oy, ox): reconstruction pixel (y, x) is truth pixel (y + oy, x + ox)."""
+        return (0.0, 0.0) if self._offset is None else self._offset(metadata)
 
     def solver_options(self) -> dict:
+        """GAP-TV's step (computed on first use) and prox threads."""
         opts = {}
-        if self.solver in ("gap-tv",):
+        if self.solver == "gap-tv":
             if self._step is None:
                 from recon.solvers.base import preconditioned_norm_sq, safe_reciprocal
 
@@ -351,49 +400,42 @@ class SegmentReconstructor:
                 opts["threads"] = self.threads
         return opts
 
-    def solve(self, g, *, iters: int, x0=None, mu: float = 0.0, truth=None,
-              callback=None) -> tuple[np.ndarray, dict]:
-        """Reconstruct one frame → (cube (H, W, L), info).
+    def solve(self, g, *, iters: int, x0=None, mu: float = 0.0, callback=None
+              ) -> tuple[np.ndarray, dict]:
+        r"""Reconstruct one frame → (cube (H, W, L), info).
 
         ``x0`` (H, W, L) warm-starts the solver; ``mu`` > 0 (with ``x0``) adds the temporal
-        term :math:`\\mu\\lVert f - x_0\\rVert_1` (GAP-TV only).
+        term :math:`\mu\lVert f - x_0\rVert_1` (GAP-TV only, :mod:`recon.temporal`).
         """
-        import time as _time
-
-        if mu > 0 and x0 is not None:
+        t0 = time.perf_counter()
+        x0_bm = None if x0 is None else np.ascontiguousarray(
+            np.moveaxis(np.asarray(x0, np.float32), 2, 0))
+        g = np.asarray(g, np.float32)
+        if mu > 0 and x0_bm is not None:
             from recon.temporal import gap_tv_temporal
 
             if self.solver != "gap-tv":
                 raise InputError("the temporal TV term is implemented for gap-tv only")
-            t0 = _time.perf_counter()
-            ref = np.ascontiguousarray(np.moveaxis(np.asarray(x0, np.float32), 2, 0))
-            res = gap_tv_temporal(self.op, g, ref=ref, mu=float(mu), iters=int(iters),
-                                  tau=self.tau, x0=ref, callback=callback,
+            res = gap_tv_temporal(self.op, g, ref=x0_bm, mu=float(mu), iters=int(iters),
+                                  tau=self.tau, x0=x0_bm, callback=callback,
                                   **self.solver_options())
-            cube = np.ascontiguousarray(np.moveaxis(res.x, 0, 2), dtype=np.float32)
-            return cube, {"iters": res.iterations, "wall_seconds": _time.perf_counter() - t0,
-                          "tau": self.tau, "mu": float(mu)}
-        from recon.solvers import solve
+        else:
+            from recon.solvers import solve
 
-        t0 = _time.perf_counter()
-        x0_bm = None if x0 is None else np.ascontiguousarray(
-            np.moveaxis(np.asarray(x0, np.float32), 2, 0))
-        res = solve(self.solver, self.op, np.asarray(g, np.float32), iters=int(iters),
-                    tau=self.tau, x0=x0_bm, callback=callback, **self.solver_options())
+            mu = 0.0
+            res = solve(self.solver, self.op, g, iters=int(iters), tau=self.tau, x0=x0_bm,
+                        callback=callback, **self.solver_options())
         cube = np.ascontiguousarray(np.moveaxis(res.x, 0, 2), dtype=np.float32)
         if not np.all(np.isfinite(cube)):
             raise RuntimeError(f"solver {self.solver!r} diverged (non-finite values)")
-        return cube, {"iters": res.iterations, "wall_seconds": _time.perf_counter() - t0,
-                      "tau": self.tau, "mu": 0.0}
+        return cube, {"iters": int(res.iterations), "wall_seconds": time.perf_counter() - t0,
+                      "tau": self.tau, "mu": float(mu)}
 
 
 def _frame_measurement(frame, metadata, cal, view_ids) -> np.ndarray:
-    """Cut the views out of a raw frame and bring them to the calibration's radiometric scale.
-
-    The calibration's mask images are per unit of cube radiance at the exposure of its
-    captures, which it divides out (their ``radiance_scale``); a scene frame is divided by its
-    own ``radiance_scale`` the same way.
-    """
+    """Cut the views out of a raw frame and divide by its exposure factor ``radiance_scale``
+    (as :func:`kaleidospec.pipeline.reconstruct_views`: the calibration divided its captures'
+    out, so frames and calibration share one radiometric scale)."""
     from recon.calibration import measurements
 
     g = measurements(frame, cal, view_ids, metadata=metadata)
@@ -467,9 +509,10 @@ def reconstruct_segment(out_dir, start: int, stop: int, settings: dict, on_frame
     out_dir : path
     start, stop : int
     settings : dict
-        ``calibration`` (path), ``views``, ``solver``, ``iters``, ``cold_iters``, ``tau``,
-        ``mu``, ``threads``, ``animation`` (the scene's ``describe()``, for sector masks),
-        ``wavelengths``.
+        ``operator`` (``calibrated``, default, or ``oracle``), ``calibration`` (path) or
+        ``design`` (a ``Design.to_dict()``, for the oracle), ``views``, ``solver``, ``iters``,
+        ``cold_iters``, ``tau``, ``mu``, ``threads``, ``animation`` (the scene's
+        ``describe()``, for sector masks), ``wavelengths``.
     on_frame : callable, optional
         Called with the frame index after each frame is written (progress in this process).
 
@@ -478,7 +521,6 @@ def reconstruct_segment(out_dir, start: int, stop: int, settings: dict, on_frame
     dict
         ``done`` (frames reconstructed now), ``skipped``, ``seconds``.
     """
-    from recon.calibration import load_calibration
     from recon.io.cubes import read_cube, write_cube
     from recon.io.raw import read_raw
 
@@ -488,15 +530,10 @@ def reconstruct_segment(out_dir, start: int, stop: int, settings: dict, on_frame
                "seconds": 0.0}
     if not todo:
         return summary
-    cal = load_calibration(settings["calibration"])
-    rec = SegmentReconstructor(cal, settings["views"], solver=settings["solver"],
-                               tau=settings.get("tau"), threads=settings.get("threads"))
+    rec = _segment_reconstructor(settings)
     wl = np.asarray(settings["wavelengths"], np.float64)
     masker = _sector_masker(settings.get("animation"))
-    from kaleidospec.pipeline import _design_of, grid_offset, truth_on_grid
-
-    design = None
-    offset = (0.0, 0.0)
+    offset = None
     prev = None
     prev_i = None
     t_seg = time.perf_counter()
@@ -509,16 +546,13 @@ def reconstruct_segment(out_dir, start: int, stop: int, settings: dict, on_frame
         g = rec.measurement(frame, meta)
         warm = prev is not None
         iters = settings["iters"] if warm else settings["cold_iters"]
-        cube, info = rec.solve(g, iters=iters, x0=prev, mu=settings.get("mu", 0.0) if warm else 0.0)
-        truth, _ = read_cube(lay.truth(i))
-        if design is None and (truth.shape != cube.shape or masker is not None):
-            # The truth is on the centre view's grid; the cube on the calibration's.
-            design = _design_of(meta)
-            offset = grid_offset(design, cal)
-        if truth.shape != cube.shape:
-            truth = truth_on_grid(truth, design, cal)
+        cube, info = rec.solve(g, iters=iters, x0=prev,
+                               mu=settings.get("mu", 0.0) if warm else 0.0)
+        truth = rec.truth_on_grid(read_cube(lay.truth(i))[0], meta)
         masks = None
         if masker is not None:
+            if offset is None:
+                offset = rec.grid_offset(meta)
             masks = masker.sector_masks(i, grid_shape=cube.shape[:2], offset=offset)
         m = frame_metrics(cube, truth, wl, masks)
         write_cube(lay.cube(i), cube, wl)
@@ -533,6 +567,20 @@ def reconstruct_segment(out_dir, start: int, stop: int, settings: dict, on_frame
             on_frame(i)
     summary["seconds"] = time.perf_counter() - t_seg
     return summary
+
+
+def _segment_reconstructor(settings: dict) -> SegmentReconstructor:
+    kw = {"solver": settings["solver"], "tau": settings.get("tau"),
+          "threads": settings.get("threads")}
+    if settings.get("operator", "calibrated") == "oracle":
+        from sim.design import Design
+
+        return SegmentReconstructor.oracle(Design.from_dict(settings["design"]),
+                                           settings["views"], **kw)
+    from recon.calibration import load_calibration
+
+    return SegmentReconstructor.calibrated(load_calibration(settings["calibration"]),
+                                           settings["views"], **kw)
 
 
 def plan_segments(n_frames: int, segment_frames: int) -> list[list[int]]:
@@ -680,13 +728,14 @@ def write_summary(out_dir, n_frames: int) -> dict:
 
 
 def write_video(out_dir, n_frames: int, fps: float, wavelengths, *, fmt: str = "gif",
-                with_truth: bool = True) -> Path:
+                with_truth: bool = True, truth_to_grid=None) -> Path:
     """The sRGB video of the reconstructions (ground truth on the left when available).
 
     Every frame is rendered with one exposure, the 99th percentile of the luminance of the
     first true frame (or reconstruction), so brightness changes are the scene's own.  Animated
     GIF or WebP through imageio/Pillow, written atomically; frames whose cube is missing are
-    left out.
+    left out.  ``truth_to_grid(truth)`` moves a truth cube onto the reconstruction grid when
+    the two differ (the calibration's grid, :func:`kaleidospec.pipeline.truth_on_grid`).
     """
     import imageio.v3 as iio
 
@@ -707,6 +756,8 @@ def write_video(out_dir, n_frames: int, fps: float, wavelengths, *, fmt: str = "
         parts = [rec]
         if with_truth and lay.truth(i).exists():
             truth, _ = read_cube(lay.truth(i))
+            if truth.shape != rec.shape and truth_to_grid is not None:
+                truth = truth_to_grid(truth)
             if truth.shape == rec.shape:
                 parts = [truth, rec]
         if peak is None:
@@ -746,7 +797,7 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
               noise: bool = True, subframes: int = 1, scene_params: dict | None = None,
               segment_frames: int | None = None, workers: int | None = None,
               scheduler: str | None = None, video_format: str = "gif",
-              progress: bool = True, cache_dir=None) -> dict:
+              operator: str = "calibrated", progress: bool = True, cache_dir=None) -> dict:
     """Render and reconstruct a dynamic scene; resumes an interrupted run in ``out_dir``.
 
     Parameters
@@ -779,6 +830,9 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
     scheduler : str, optional
         Dask scheduler address; the workers must see ``out_dir``.
     video_format : {"gif", "webp"}
+    operator : {"calibrated", "oracle"}
+        Reconstruct with the calibration (default, what the instrument does) or with the
+        design's exact operator (for comparison).
     cache_dir : path, optional
         Calibration cache (:func:`kaleidospec.pipeline.calibrate`'s default if None).
 
@@ -800,6 +854,8 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
         raise InputError(f"--temporal must be >= 0, got {temporal}")
     if temporal > 0 and solver != "gap-tv":
         raise InputError("--temporal is implemented for the gap-tv solver only")
+    if operator not in ("calibrated", "oracle"):
+        raise InputError(f"--operator must be calibrated or oracle, got {operator!r}")
     if video_format not in ("gif", "webp"):
         raise InputError(f"--format must be gif or webp, got {video_format!r}")
     if scheduler is not None and not str(scheduler).startswith(("tcp://", "tls://", "inproc://",
@@ -825,7 +881,8 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
               "overrides": {k: str(val) for k, val in (overrides or {}).items()},
               "design_hash": d.hash, "views": int(views), "solver": solver,
               "iters": int(iters), "cold_iters": int(cold_iters), "tau": tau,
-              "temporal": float(temporal), "seed": int(seed), "noise": bool(noise)}
+              "temporal": float(temporal), "seed": int(seed), "noise": bool(noise),
+              "operator": operator}
     old = _check_manifest(lay, config)
     lay.make()
 
@@ -853,27 +910,38 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
                                    scene=str(scene))
     render_stats["wall_seconds"] = time.perf_counter() - t0
 
-    from kaleidospec.pipeline import calibrate
-    from recon.calibration import calibration_path
-
-    cal = calibrate(d, cache_dir=cache_dir, progress=progress)
-    cal_file = _calibration_file(cal, d, cache_dir)
-    settings = {"calibration": str(cal_file), "views": int(views), "solver": solver,
+    settings = {"operator": operator, "views": int(views), "solver": solver,
                 "iters": int(iters), "cold_iters": int(cold_iters), "tau": tau,
                 "mu": float(temporal), "animation": anim.describe(),
                 "wavelengths": [float(x) for x in anim.wavelengths]}
+    if operator == "oracle":
+        settings["design"] = d.to_dict()
+    else:
+        from kaleidospec.pipeline import calibrate
+
+        calibrate(d, cache_dir=cache_dir, progress=progress)
+        settings["calibration"] = str(_calibration_file(d, cache_dir))
     rec_stats = reconstruct_sequence(out, n, segments, settings, workers=nworkers,
                                      scheduler=scheduler, progress=progress)
     summary = write_summary(out, n)
-    video = write_video(out, n, anim.fps, anim.wavelengths, fmt=video_format)
+    to_grid = None
+    if operator == "calibrated":
+        from kaleidospec.pipeline import calibrate, truth_on_grid
+
+        cal = calibrate(d, cache_dir=cache_dir, progress=False)  # cached: a load
+        to_grid = lambda t: truth_on_grid(t, d, cal)  # noqa: E731
+    video = write_video(out, n, anim.fps, anim.wavelengths, fmt=video_format,
+                        truth_to_grid=to_grid)
     return {"frames": n, "render": render_stats, "reconstruct": rec_stats, "summary": summary,
             "video": str(video), "out": str(out)}
 
 
-def _calibration_file(cal, design, cache_dir) -> Path:
+def _calibration_file(design, cache_dir=None) -> Path:
     """Where the calibration of ``design`` is stored (workers load it from there)."""
     from recon.calibration import calibration_path
     from sim.transport import cache_dir as default_cache
 
     p = calibration_path(default_cache() if cache_dir is None else Path(cache_dir), design.hash)
+    if not p.is_file():
+        raise RuntimeError(f"the calibration of design {design.hash} is not at {p}")
     return p

@@ -7,7 +7,8 @@ Each capture is a raw frame (DN, float32) plus a JSON-ready sidecar (the one
 from the target's datasheet (``pattern_size``; the patch reference radiances).
 
 =================  ======================================================================
-``white``          uniform white, monochromatic at every band centre (L frames)
+``white``          uniform white through every band's band-pass (L frames): the band's
+                   whole wavelength interval, as a scene frame integrates it
 ``line``           a 1-px bright vertical line, monochromatic at every band centre (L frames)
 ``checker``        a checkerboard at 550 nm (``CHECKER_NM``), with a quiet white margin
 ``checker_white``  the uniform white at 550 nm (the checkerboard's flat field)
@@ -92,7 +93,7 @@ class Captures:
 
     def names(self) -> list[str]:
         """Capture names recorded in the calibration file."""
-        return [f"white@{w:g}nm" for w in self.wavelengths] + \
+        return [f"white-band@{w:g}nm" for w in self.wavelengths] + \
                [f"line@{w:g}nm" for w in self.wavelengths] + \
                [f"checker@{CHECKER_NM:g}nm", f"white@{CHECKER_NM:g}nm", "colorchecker"]
 
@@ -162,8 +163,14 @@ def render_captures(design, *, repeats: int = 4, seed: int = 1000, progress: boo
         for i, (name, l) in enumerate(steps):
             s = seed + 101 * i
             if name == "white":
-                f, m = capture(design, white_cube, wl, wavelength_nm=wl[l], repeats=repeats,
-                               seed=s, target="white")
+                # A band-pass white (the band's whole interval, like a lab's filter of the band's
+                # width), not a line at the band centre: the mask image then carries the
+                # dispersion smear inside the band exactly as a scene frame does (measured: +4 dB
+                # for one view on the ColorChecker of the small design).
+                band = np.zeros_like(white_cube)
+                band[:, :, l] = white_cube[:, :, l]
+                f, m = capture(design, band, wl, repeats=repeats, seed=s, target="white")
+                m["band_nm"] = float(wl[l])
                 whites.append(f), meta["white"].append(m)
             elif name == "line":
                 f, m = capture(design, line_cube, wl, wavelength_nm=wl[l], repeats=repeats,

@@ -173,16 +173,17 @@ class LinePair:
 def line_pair(design) -> LinePair:
     """The line-pair target for ``design`` (see the module notes).
 
-    Columns: :math:`c_1 = g + \\lfloor (v - 2g)/4 \\rceil`, :math:`c_2 = v - 1 - c_1`; rows
+    Columns: :math:`c_1 = g + 2`, :math:`c_2 = v - 1 - c_1` (as far apart as the open part of
+    both the view and its mirror image allows, a mask cell clear of the guard); rows
     :math:`r_1 = \\lfloor v/4 \\rceil`, :math:`r_2 = v - 1 - r_1`. Raises :class:`InputError`
-    when the guard leaves no room for a pair visible in the mirrored copies (g ≥ v/2 − 1).
+    when the guard leaves no room for a pair visible in the mirrored copies (v − 2g < 8).
     """
     v, g = design.view_size_px, design.guard_px
-    if v < 8 or v - 2 * g < 4:
+    if v < 8 or v - 2 * g < 8:
         raise InputError(
             f"views of {v} px with a {g} px guard stripe leave no room for a line-pair target"
         )
-    c1 = g + int(round((v - 2 * g) / 4.0))
+    c1 = g + 2
     r1 = int(round(v / 4.0))
     return LinePair(cols=(c1, v - 1 - c1), rows=(r1, v - 1 - r1))
 
@@ -295,13 +296,15 @@ def predicted(design) -> dict:
 
 
 # ---------------------------------------------------------------------- measurements
-def _lines_in(img: np.ndarray, win, axis: int, n: int = 2) -> list[float]:
-    """Centroids (sensor coordinates) of ``n`` lines in window ``win`` of ``img``; axis 1:
-    vertical lines (positions along columns), axis 0: horizontal lines (along rows)."""
+def _lines_in(img: np.ndarray, win, axis: int, n: int = 2, sep: int = 9) -> list[float]:
+    """Centroids (sensor coordinates) of ``n`` lines ``sep`` px apart in window ``win`` of
+    ``img``; axis 1: vertical lines (positions along columns), axis 0: horizontal lines."""
     r0, c0, h, w = win
     sub = img[r0:r0 + h, c0:c0 + w].astype(np.float64)
     prof = sub.sum(axis=0) if axis == 1 else sub.sum(axis=1)
-    found = peak_centroids(prof, n)
+    # Centroid windows narrower than half the separation keep the two lines apart.
+    hw = int(max(1, min(4, (sep - 1) // 2)))
+    found = peak_centroids(prof, n, half_width=hw, min_separation=0)
     off = c0 if axis == 1 else r0
     return [x + off for x in found]
 
@@ -330,8 +333,9 @@ def measure_geometry(design, *, spp: int = 8, seed: int = 0) -> dict:
                        spp=spp, seed=seed)
     himg = render_mono(design, target_cube(design, "hlines"), lam, windows=list(wins.values()),
                        spp=spp, seed=seed + 1)
-    xs = {v: _lines_in(vimg, w, axis=1) for v, w in wins.items()}
-    ys = {v: _lines_in(himg, w, axis=0) for v, w in wins.items()}
+    sx, sy = lp.cols[1] - lp.cols[0], lp.rows[1] - lp.rows[0]
+    xs = {v: _lines_in(vimg, w, axis=1, sep=sx) for v, w in wins.items()}
+    ys = {v: _lines_in(himg, w, axis=0, sep=sy) for v, w in wins.items()}
     nan = float("nan")
 
     def mid(d, v):
@@ -386,10 +390,11 @@ def measure_dispersion(design, wavelengths=None, *, spp: int = 8, seed: int = 0)
     strip = max(16, h // 3)
     win = (r0 + (h - strip) // 2, c0, strip, w)
     target = target_cube(design, "vlines")
+    lp = line_pair(design)
     pos = []
     for i, lam in enumerate(wl):
         img = render_mono(design, target, lam, windows=[win], spp=spp, seed=seed + 10 + i)
-        found = _lines_in(img, win, axis=1)
+        found = _lines_in(img, win, axis=1, sep=lp.cols[1] - lp.cols[0])
         pos.append(float(np.mean(found)) if len(found) == 2 else float("nan"))
     pos = np.array(pos)
     x_c = pos[int(np.flatnonzero(wl == lam_c)[0])]
@@ -403,7 +408,8 @@ def measure_dispersion(design, wavelengths=None, *, spp: int = 8, seed: int = 0)
         "phi_pred_px": phi_pred.tolist(),
         "span_meas_px": float(pos[i_hi] - pos[i_lo]),
         "span_pred_px": float(phi_pred[i_hi] - phi_pred[i_lo]),
-        "max_phi_err_px": float(np.nanmax(np.abs(phi_meas - phi_pred))),
+        "max_phi_err_px": (float(np.nanmax(np.abs(phi_meas - phi_pred)))
+                           if np.isfinite(phi_meas).any() else float("nan")),
         "centre_x_err_px": float(x_c - _view_centre(design, 0)[1]),
     }
 

@@ -41,9 +41,11 @@ def main(argv=None) -> int:
     ap.add_argument("--views", default="1,2,3,5", help="view counts of the CIEDE2000 sweep")
     ap.add_argument("--sweep-frames", type=int, default=4)
     ap.add_argument("--skip-parallel", action="store_true")
+    ap.add_argument("--operator", choices=("calibrated", "oracle"), default="calibrated",
+                    help="reconstruct with the calibration or the design's exact operator")
     args = ap.parse_args(argv)
 
-    from kaleidospec.pipeline import calibrate, grid_offset, truth_on_grid
+    from kaleidospec.pipeline import calibrate
     from kaleidospec.video import (FrameRenderer, SegmentReconstructor, VideoLayout,
                                    _calibration_file, frame_metrics, reconstruct_sequence,
                                    render_sequence)
@@ -87,15 +89,21 @@ def main(argv=None) -> int:
     # ---- 2. reconstruction -------------------------------------------------------------------
     t = time.perf_counter()
     cal = calibrate(d, progress=True)
-    print(f"\n[reconstruct] calibration (cached after the first run): {time.perf_counter() - t:.1f} s")
+    print(f"\n[reconstruct] operator: {args.operator}")
+    print(f"[reconstruct] calibration (cached after the first run): {time.perf_counter() - t:.1f} s")
     from recon.io.cubes import read_cube
     from recon.io.raw import read_raw
 
     lay = VideoLayout(tmp)
-    rec = SegmentReconstructor(cal, 5)
+
+    def make(nv):
+        if args.operator == "oracle":
+            return SegmentReconstructor.oracle(d, nv)
+        return SegmentReconstructor.calibrated(cal, nv)
+    rec = make(5)
     rec.solver_options()  # the step, computed once per segment
     frames = [read_raw(lay.raw(i)) for i in range(n)]
-    truths = [truth_on_grid(read_cube(lay.truth(i))[0], d, cal) for i in range(n)]
+    truths = [rec.truth_on_grid(read_cube(lay.truth(i))[0], frames[i][1]) for i in range(n)]
     gs = [rec.measurement(f, m) for f, m in frames]
     cold = []
     t = time.perf_counter()
@@ -121,7 +129,8 @@ def main(argv=None) -> int:
     print(f"[reconstruct] warm frames 1..{n - 1}: worst {gap[1:].min():+.2f} dB, mean "
           f"{gap[1:].mean():+.2f} dB (target: within 0.5 dB)")
     if not args.skip_parallel:
-        settings = {"calibration": str(_calibration_file(cal, d, None)), "views": 5,
+        settings = {"operator": args.operator, "design": d.to_dict(),
+                    "calibration": str(_calibration_file(d)), "views": 5,
                     "solver": "gap-tv", "iters": args.iters, "cold_iters": args.cold_iters,
                     "tau": None, "mu": 0.0, "animation": anim.describe(),
                     "wavelengths": [float(x) for x in d.wavelengths]}
@@ -135,14 +144,14 @@ def main(argv=None) -> int:
 
     # ---- 3. CIEDE2000 against views ----------------------------------------------------------
     counts = [int(c) for c in args.views.split(",")]
-    offset = grid_offset(d, cal)
+    offset = rec.grid_offset(frames[0][1])
     k = min(args.sweep_frames, n)
     print(f"\n[colour] sector CIEDE2000 (sector mean spectrum vs truth), frames 0..{k - 1}, "
           f"frame 0 cold x{args.cold_iters}, then warm x{args.iters}")
     print(f"{'views':>5} {'PSNR':>7} {'SAM':>6} {'dE00 img':>8} {'dE00 sectors':>12} "
           f"{'dE00 red':>8} {'paper (red)':>11}")
     for nv in counts:
-        rv = SegmentReconstructor(cal, nv)
+        rv = make(nv)
         prev = None
         rows = []
         for i in range(k):

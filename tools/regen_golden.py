@@ -51,7 +51,7 @@ def main(argv=None) -> int:
             gold = g.load_goldens(out)
             p = g.produce()
             problems = g.compare_frames(p["frame"], gold["frame"], gold["meta"]["spp"])
-            problems += g.compare_reconstructions(p["cube"], gold["cube"], gold["truth"],
+            problems += g.compare_reconstructions(p["cube"], gold["cube"], p["truth_grid"],
                                                   gold["meta"]["psnr_truth_db"])
             for line in problems:
                 print(f"differs: {line}")

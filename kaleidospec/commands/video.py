@@ -69,6 +69,9 @@ def video(
                                             "address tcp://host:port (needs dask.distributed; "
                                             "the workers must see --out)."),
     fmt: str = typer.Option("gif", "--format", help="sRGB video format: gif or webp."),
+    operator: str = typer.Option("calibrated", "--operator", help="calibrated (from the "
+                                 "calibration captures) or oracle (the design's exact "
+                                 "operator, for comparison)."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress bars."),
 ) -> None:
     """Render and reconstruct a dynamic scene frame by frame (4D hyperspectral video)."""
@@ -89,15 +92,16 @@ def video(
                     fps=fps, views=views, solver=solver, iters=iters, cold_iters=cold_iters,
                     tau=tau, temporal=temporal, seed=seed, noise=noise, subframes=subframes,
                     scene_params=params, segment_frames=segment, workers=workers,
-                    scheduler=scheduler, video_format=fmt, progress=progress)
+                    scheduler=scheduler, video_format=fmt, operator=operator,
+                    progress=progress)
     r, c, s = res["render"], res["reconstruct"], res["summary"]
-    rate = r["rendered"] / r["seconds"] if r["seconds"] > 0 else float("nan")
-    typer.echo(f"render: {r['rendered']} frames ({r['skipped']} already done), "
-               f"{rate:.1f} frames/s from the transport cache")
-    rrate = c["done"] / c["seconds"] if c["seconds"] > 0 and c["done"] else float("nan")
-    typer.echo(f"reconstruct: {c['done']} frames ({c['skipped']} already done) in "
-               f"{c['seconds']:.1f} s, {rrate:.2f} frames/s ({c['backend']}, "
-               f"{c['workers']} worker(s), {c['segments']} segment(s))")
+    rate = (f", {r['rendered'] / r['seconds']:.1f} frames/s from the transport cache"
+            if r["rendered"] and r["seconds"] > 0 else "")
+    typer.echo(f"render: {r['rendered']} frames ({r['skipped']} already done){rate}")
+    rrate = (f" in {c['seconds']:.1f} s, {c['done'] / c['seconds']:.2f} frames/s "
+             f"({c['backend']}, {c['workers']} worker(s), {c['segments']} segment(s))"
+             if c["done"] and c["seconds"] > 0 else "")
+    typer.echo(f"reconstruct: {c['done']} frames ({c['skipped']} already done){rrate}")
 
     def f(k, fmt_=".2f"):
         v = s.get(k)

@@ -54,7 +54,8 @@ import numpy as np
 
 from recon.errors import InputError
 
-__all__ = ["gradient", "divergence", "tv_norm", "tv_norm_per_band", "prox_tv", "TVProx"]
+__all__ = ["gradient", "divergence", "tv_norm", "tv_norm_per_band", "prox_tv", "TVProx",
+           "parallel_spans"]
 
 # Dual step.  1/4 is the largest step for which the projected-gradient form is proven to
 # converge in 2-D (||div||^2 <= 8, step < 2/8); Chambolle's semi-implicit form is used at the
@@ -227,6 +228,22 @@ def _pool(n: int) -> ThreadPoolExecutor:
             _POOL_SIZE = n
         return _POOL
 
+
+
+def parallel_spans(fn, n: int, threads: int | None = None, min_span: int = 1 << 16) -> None:
+    """Call ``fn(a, b)`` over contiguous spans covering ``range(n)``, on the thread pool.
+
+    For elementwise NumPy work on large flat arrays (the GIL is released inside ufuncs).
+    Spans are at least ``min_span`` long; with one span ``fn`` runs in the caller's thread.
+    """
+    n_threads = _default_threads() if threads is None else max(1, int(threads))
+    k = max(1, min(n_threads, n // max(1, min_span)))
+    edges = [n * i // k for i in range(k + 1)]
+    if k == 1:
+        fn(0, n)
+        return
+    for job in [_pool(n_threads).submit(fn, a, b) for a, b in zip(edges[:-1], edges[1:])]:
+        job.result()
 
 # Bands are processed in chunks of about this many bytes per array, so that the ~7 arrays a
 # chunk touches stay in a core's cache across the dozen passes of one dual iteration (measured:

@@ -96,7 +96,7 @@ def test_line_pair_is_symmetric_and_avoids_the_guard():
     t = target_cube(d, "vlines")
     assert t.shape == (v, v) and np.array_equal(np.flatnonzero(t.sum(0)), list(lp.cols))
     with pytest.raises(InputError):
-        line_pair(_design(mask_guard_px=40))
+        line_pair(_design(mask_guard_px=36))
     with pytest.raises(InputError):
         target_cube(d, "spiral")
 
