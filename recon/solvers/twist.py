@@ -34,8 +34,10 @@ its residual).
 
 Monotone safeguard (on by default, as in the authors' ``TwIST.m``): when a two-step update
 raises the objective it is rejected and the plain IST step :math:`\Gamma(f_t)` is taken; if that
-too raises the objective, :math:`s` was too small and is doubled.  So the objective never
-increases.  The first iteration is an IST step.
+too raises the objective, the warm-started prox is first continued on the same input (up to
+``_MAX_REFINE`` more dual iterations: a 2-iteration prox is inexact near convergence), and only
+then is :math:`s` taken to be too small and doubled.  So the objective never increases.  The
+first iteration is an IST step.
 """
 
 from __future__ import annotations
@@ -181,14 +183,15 @@ def twist(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float = 0.
         Lanczos steps (forward/adjoint pairs) of the norm estimate when ``max_svd`` is omitted.
     isotropic : bool
     threads : int, optional
-        Threads of the TV prox.
+        Threads of the TV prox, the TV norm and the two-step combination.
 
     Returns
     -------
     SolverResult
         ``objective`` holds the objective of every accepted iterate; ``info`` has
-        ``max_svd``, ``alpha``, ``beta``, ``rejected`` (two-step updates replaced by IST)
-        and ``svd_doublings``.
+        ``max_svd``, ``alpha``, ``beta``, ``rejected`` (two-step updates replaced by IST),
+        ``svd_doublings``, ``prox_refinements`` (continued proxes of failed IST steps) and
+        ``tv_iters``.
     """
     g, x0, dtype = check_problem(op, g, x0, iters, tau, tol)
     if int(tv_iters) < 1:
