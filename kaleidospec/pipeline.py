@@ -46,11 +46,19 @@ __all__ = ["VIEW_ORDER", "calibrate", "render_scene", "reconstruct_views", "orac
 #: View ids in the order the 1/2/3/5/9-view experiments add them.
 VIEW_ORDER = (0, 1, 2, 3, 4, 5, 6, 7, 8)
 #: Reconstruction defaults (measured on the ``small`` design, see the README / report).
-DEFAULTS = {"solver": "gap-tv", "iters": 50, "tau": None}
+DEFAULTS = {"solver": "fista-tv", "iters": 100, "tau": None}
+#: Default TV weight per solver (per view for the solvers whose data term sums over views):
+#: measured on the ``small`` design, see :func:`_tau`.
+TAU_PER_VIEW = {"fista-tv": 0.005, "twist": 0.005}
 #: Calibrated mask values below this (fraction of the white level) are taken as chrome (0).
 MASK_FLOOR = 0.05
+#: Columns added (at most: never so many that boxes overlap) on each side of a view's lit extent:
+#: a view's outermost columns are lit by one band only and fall under the box threshold.
+BOX_MARGIN_X = 2
+#: Keep only the measurement pixels the model covers wholly (:class:`RowSelected`).
+SELECT_ROWS = False
 #: Views used to reconstruct the ColorChecker for the radiometric gains.
-_RADIOMETRY_VIEWS = 1
+_RADIOMETRY_VIEWS = 5
 
 
 def _cache_dir(cache_dir=None) -> Path:
@@ -129,7 +137,7 @@ def calibrate_from_captures(design, *, repeats: int = 4, progress: bool = False,
     steps = ["views", "dispersion", "masks", "geometry", "radiometry"]
     bar = _bar(len(steps), "calibration", progress)
     try:
-        boxes = find_view_boxes(caps.white, ids)
+        boxes = find_view_boxes(caps.white, ids, margin_x=BOX_MARGIN_X)
         _tick(bar)
         cen = line_centroids(caps.line, boxes)
         fit = fit_dispersion(wl, cen, ref_nm=CHECKER_NM, degree=min(3, wl.size - 1))
@@ -153,7 +161,8 @@ def calibrate_from_captures(design, *, repeats: int = 4, progress: bool = False,
         gains0 = expo / levels
         cal = build_calibration(
             view_ids=ids, view_boxes=boxes, box_homographies=hb, mask_images=masks,
-            wavelengths=wl, dispersion=fit(wl), checker_dispersion=fit([CHECKER_NM])[:, 0],
+            wavelengths=wl, dispersion=fit.positions(wl),
+            checker_dispersion=fit.positions([CHECKER_NM])[:, 0], phase=True,
             gains=gains0, design_hash=design.hash, captures=caps.names())
         # Radiometry: reconstruct the ColorChecker with unit gains, compare its patches with
         # their reference radiance (reflectance x D65, cube units).
@@ -178,6 +187,18 @@ def calibrate_from_captures(design, *, repeats: int = 4, progress: bool = False,
     if not np.all(gains > 0):
         raise RuntimeError(f"radiometric calibration failed: gains {gains.tolist()}")
     return dataclasses.replace(cal, gains=gains)
+
+
+def _tau(solver, tau, n_views):
+    """The TV weight: ``tau`` if given, else the solver's default per view × the views (the
+    data term sums over the views' pixels; GAP-TV's projection step does not, so its weight
+    is per view)."""
+    if tau is not None:
+        return tau
+    from recon.app import default_tau
+
+    base = TAU_PER_VIEW.get(solver, default_tau(solver))
+    return base if solver == "gap-tv" else base * int(n_views)
 
 
 def _solver_defaults():
@@ -360,6 +381,55 @@ class RowSelected:
         return _Op()
 
 
+class Scaled:
+    r"""``s·H`` (forward, adjoint and row norms scaled), for a measurement scaled the same way.
+
+    :func:`normalised` picks :math:`s` so that the mean squared row norm of the measured rows
+    is 1: the data term :math:`\tfrac12\|s g - s H f\|^2` then weighs a measurement pixel
+    alike whatever the exposure units of :math:`H`, and one TV weight :math:`\tau` serves the
+    calibrated and the exact operator, the ``small`` and the ``paper`` design.
+    """
+
+    def __new__(cls, op, s: float):
+        from recon.operators.base import LinearOperator
+
+        s = float(s)
+        f32 = np.float32(s)
+
+        class _Op(LinearOperator):
+            def __init__(self):
+                super().__init__(op.ishape, op.oshape)
+                self.inner = op
+                self.scale = s
+
+            def _forward(self, x):
+                y = op.forward(x)
+                return y * (f32 if y.dtype == np.float32 else s)
+
+            def _adjoint(self, y):
+                x = op.adjoint(y)
+                return x * (f32 if x.dtype == np.float32 else s)
+
+            def row_norms_sq(self):
+                rn = np.asarray(op.row_norms_sq())
+                return rn * rn.dtype.type(s * s)
+
+            def __repr__(self):
+                return f"Scaled({op!r}, {s:.4g})"
+
+        return _Op()
+
+
+def normalised(op, g):
+    """``(Scaled(op, s), s·g)`` with the measured rows' mean squared norm made 1."""
+    rn = np.asarray(op.row_norms_sq(), dtype=np.float64)
+    pos = rn[rn > 0]
+    if pos.size == 0:
+        return op, g
+    s = 1.0 / math.sqrt(float(pos.mean()))
+    return Scaled(op, s), (g * np.float32(s)).astype(g.dtype, copy=False)
+
+
 def calibrated_operator(cal, view_ids):
     """:func:`recon.calibration.operator_from_calibration` with the gains folded in: the
     operator maps a cube in radiance (cube) units to exposure-normalised DN."""
@@ -379,10 +449,10 @@ def calibrated_operator(cal, view_ids):
         warps.append(None if np.allclose(m, np.eye(3), atol=1e-9) and view_shape == (h, w)
                      else HomographyWarp(m, (h, w), view_shape))
     op = CalibratedCassi(masks, cal.offsets[idx], warps=warps, cube_shape=(n_bands, h, w))
-    return RowSelected(op, masks.sum(axis=1))
+    return RowSelected(op, masks.sum(axis=1)) if SELECT_ROWS else op
 
 
-def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = "gap-tv", iters: int = 50,
+def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = DEFAULTS["solver"], iters: int = DEFAULTS["iters"],
                       tau=None, x0=None, truth=None, progress: bool = False, design=None):
     """Reconstruct from the first ``n_views`` views of a raw frame with a calibration.
 
@@ -423,7 +493,8 @@ def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = "gap-tv", 
     if not (math.isfinite(s) and s > 0):
         raise InputError(f"the frame's radiance_scale must be positive, got {s}")
     g = measurements(frame, cal, ids, metadata=metadata) / np.float32(s)
-    op = calibrated_operator(cal, ids)
+    op, g = normalised(calibrated_operator(cal, ids), g)
+    tau = _tau(solver, tau, len(ids))
     tg = None
     if truth is not None:
         t = np.asarray(truth, dtype=np.float32)
@@ -446,8 +517,8 @@ def oracle_operator(design, n_views: int, *, inversion: bool = True):
     return _op(design, n_views, inversion=inversion)
 
 
-def reconstruct_oracle(frame, metadata, design, n_views, *, solver: str = "gap-tv",
-                       iters: int = 50, tau=None, truth=None, progress: bool = False,
+def reconstruct_oracle(frame, metadata, design, n_views, *, solver: str = DEFAULTS["solver"],
+                       iters: int = DEFAULTS["iters"], tau=None, truth=None, progress: bool = False,
                        inversion: bool = True, op=None):
     """Reconstruct a frame with the exact operator (:func:`oracle_operator`), on the
     ground-truth grid.  Returns ``(cube (v, v, L), info)``."""
@@ -458,6 +529,8 @@ def reconstruct_oracle(frame, metadata, design, n_views, *, solver: str = "gap-t
     g = oracle_measurements(frame, metadata, design, n_views)
     if op is None:
         op = oracle_operator(design, n_views, inversion=inversion)
+    op, g = normalised(op, g)
+    tau = _tau(solver, tau, n_views)
     t0 = time.perf_counter()
     cube, info = reconstruct(g, op, solver=solver, iters=iters, tau=tau, truth=truth,
                              wavelengths=design.wavelengths, progress=progress)
@@ -495,8 +568,8 @@ def _finite(obj):
     return obj
 
 
-def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = "gap-tv",
-        iters: int = 50, tau=None, seed: int = 0, progress: bool = True, cache_dir=None,
+def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS["solver"],
+        iters: int = DEFAULTS["iters"], tau=None, seed: int = 0, progress: bool = True, cache_dir=None,
         oracle: bool = True, figures: bool = True, raw=None, widen: bool = True,
         log=None) -> dict:
     """Render ``scene``, calibrate (cached), reconstruct for every view count, write a report.

@@ -24,8 +24,8 @@ def run(
     views: str = typer.Option("1,2,3,5,9", "--views", help="View counts, comma-separated "
                               "(views added in the order centre, left, right, top, bottom, "
                               "corners)."),
-    solver: str = typer.Option("gap-tv", "--solver", help="Solver (recon.solvers)."),
-    iters: int = typer.Option(50, "--iters", help="Iterations."),
+    solver: str = typer.Option("fista-tv", "--solver", help="Solver (recon.solvers); default fista-tv."),
+    iters: int = typer.Option(100, "--iters", help="Iterations."),
     tau: Optional[float] = typer.Option(None, "--tau", help="TV weight (default: the "
                                         "solver's own)."),
     seed: int = typer.Option(0, "--seed", help="Sensor-noise seed of the scene frame."),

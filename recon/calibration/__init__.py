@@ -15,7 +15,7 @@ reconstruct the ColorChecker → radiometry.
 """
 
 from recon.calibration.dispersion import (DispersionFit, fit_dispersion, line_centroids,
-                                          normalise_offsets)
+                                          normalise_offsets, normalise_offsets_phase)
 from recon.calibration.geometry import (apply_homography, find_corners, refine_homography,
                                         to_view_coordinates, unmask, view_homographies)
 from recon.calibration.mask import airy_kernel, airy_radius_px, mask_images
@@ -31,6 +31,7 @@ __all__ = [
     "apply_gains", "apply_homography", "build_calibration", "calibration_path", "check_design",
     "find_corners", "find_view_boxes", "fit_dispersion", "fit_gains", "line_centroids",
     "load_cached", "load_calibration", "mask_images", "measurements", "normalise_offsets",
+    "normalise_offsets_phase",
     "operator_from_calibration", "patch_spectra", "read_measurements", "refine_homography",
     "save_calibration", "to_view_coordinates", "unmask", "view_homographies",
 ]

@@ -84,11 +84,20 @@ class DispersionFit:
         :math:`u` in µm⁻² (so the coefficients are of order the shifts).
     rms_px : (K,) float64
         RMS residual of the fit at the measured wavelengths.
+    intercept : (K,) float64 or None
+        The fit's constant term: the line's column (box coordinates) at ``ref_nm``, so that
+        :math:`\varphi_k + a_{k,0}` is the line's fitted position (:meth:`positions`).
     """
 
     ref_nm: float
     coeffs: np.ndarray
     rms_px: np.ndarray
+    intercept: np.ndarray | None = None
+
+    def positions(self, wavelengths_nm) -> np.ndarray:
+        r"""(K, L) fitted line columns (box coordinates): :math:`a_{k,0} + \varphi_k(\lambda)`."""
+        a0 = np.zeros(self.coeffs.shape[0]) if self.intercept is None else self.intercept
+        return self(wavelengths_nm) + np.asarray(a0, dtype=np.float64)[:, None]
 
     def __call__(self, wavelengths_nm) -> np.ndarray:
         r"""Return :math:`\varphi_k(\lambda)`, shape (K, L) for L wavelengths."""
@@ -142,7 +151,28 @@ def fit_dispersion(wavelengths_nm, centroids, ref_nm: float | None = 550.0,
     sol, *_ = np.linalg.lstsq(a, c.T, rcond=None)            # (d+1, K)
     resid = c.T - a @ sol
     rms = np.sqrt(np.mean(resid ** 2, axis=0))
-    return DispersionFit(ref_nm=ref_nm, coeffs=np.ascontiguousarray(sol[1:].T), rms_px=rms)
+    return DispersionFit(ref_nm=ref_nm, coeffs=np.ascontiguousarray(sol[1:].T), rms_px=rms,
+                         intercept=np.ascontiguousarray(sol[0]))
+
+
+def normalise_offsets_phase(offsets) -> tuple[np.ndarray, np.ndarray]:
+    r"""Shift every view's row of a (K, L) table of *line positions* by a whole number of
+    columns so that its smallest entry is in [0, 1).
+
+    With the fitted line positions as offsets, the line (one scene column wide) falls on a
+    whole view column in every band: the view grid keeps the sub-pixel phase of the scene and
+    mask grid that the line shows, instead of an arbitrary one (a grid half a pixel off the
+    mask cells mixes two mask cells into every model pixel).
+
+    Returns
+    -------
+    offsets : (K, L) float64
+    shift : (K,) float64
+        The whole numbers subtracted per view.
+    """
+    o = np.asarray(offsets, dtype=np.float64)
+    shift = np.floor(o.min(axis=1) + 1e-9)
+    return o - shift[:, None], shift
 
 
 def normalise_offsets(offsets) -> tuple[np.ndarray, float]:

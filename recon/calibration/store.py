@@ -27,13 +27,17 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.calibration.dispersion import normalise_offsets
+from recon.calibration.dispersion import normalise_offsets, normalise_offsets_phase
 from recon.calibration.geometry import to_view_coordinates
 from recon.calibration.views import check_boxes, check_view_ids
 from recon.errors import InputError
 
 FORMAT = "kaleidospec-calibration"
 VERSION = 1
+#: Calibration code version (part of the cache key, :func:`calibration_path`): bump it when the
+#: capture renderer or the pipeline's calibration steps change.
+CODE_VERSION = 2
+_CODE_VERSION: str | None = None
 ARRAY_FIELDS = ("view_boxes", "homographies", "mask_images", "offsets", "gains", "wavelengths")
 JSON_FIELDS = ("design_hash", "cube_shape", "view_ids", "captures", "created")
 _HASH_RE = re.compile(r"^[0-9A-Za-z_-]{1,128}$")
@@ -114,13 +118,15 @@ class Calibration:
 
 def build_calibration(*, view_ids, view_boxes, box_homographies, mask_images, wavelengths,
                       dispersion, checker_dispersion, gains=None, design_hash=None,
-                      captures=(), snap_px: float = 0.05) -> Calibration:
+                      captures=(), snap_px: float = 0.05, grid: str = "union",
+                      phase: bool = False) -> Calibration:
     r"""Assemble a :class:`Calibration` from the results of the individual steps.
 
     Normalises the offsets (smallest 0, :func:`~recon.calibration.dispersion.normalise_offsets`),
     converts the box homographies to view coordinates at the checkerboard's wavelength
     (:func:`~recon.calibration.geometry.to_view_coordinates`) and sets the cube to the centre
-    view's undispersed size :math:`H_v \times (W_m - \lceil\max o\rceil)`.
+    view's rows and the columns that the views code together (``grid``); every view image is
+    :math:`H_v \times W_v`, :math:`W_v = W_m - \lceil\max o\rceil`.
 
     Parameters
     ----------
@@ -147,6 +153,17 @@ def build_calibration(*, view_ids, view_boxes, box_homographies, mask_images, wa
         centroid resolves, keeps integer shifts exact copies (no interpolation blur) and stops a
         measurement of 11.02 px for a true 11 px from costing the cube a column
         (:math:`W_v = W_m - \lceil\max o\rceil`).  0 disables it.
+    phase : bool
+        ``dispersion`` holds absolute line positions (box columns,
+        :meth:`~recon.calibration.dispersion.DispersionFit.positions`): keep each view's
+        sub-pixel phase (:func:`~recon.calibration.dispersion.normalise_offsets_phase`, whole
+        columns removed per view) instead of shifting all offsets so that the smallest is 0.
+    grid : {"union", "centre"}
+        The reconstruction grid: ``"union"`` (default) the centre view's rows and every column
+        that some view's mask codes (:func:`union_width`: the mirrored views see the scene
+        under the centre's guard stripe), ``"centre"`` only the centre view's view image
+        (:math:`W_v` columns; those scene columns are then missing from the model of the
+        mirrored views).
     """
     ids = check_view_ids(view_ids)
     if 0 not in ids:
@@ -154,7 +171,10 @@ def build_calibration(*, view_ids, view_boxes, box_homographies, mask_images, wa
     phi = np.asarray(dispersion, dtype=np.float64)
     if not 0.0 <= snap_px < 0.5:
         raise InputError(f"snap_px must be in [0, 0.5), got {snap_px}")
-    offsets, shift = normalise_offsets(phi)
+    if phase:
+        offsets, shift = normalise_offsets_phase(phi)
+    else:
+        offsets, shift = normalise_offsets(phi)
     offsets = _snap(offsets, snap_px)
     chk = _snap(np.asarray(checker_dispersion, dtype=np.float64) - shift, snap_px)
     hv_ = to_view_coordinates(box_homographies, chk, centre=ids.index(0))
@@ -166,11 +186,67 @@ def build_calibration(*, view_ids, view_boxes, box_homographies, mask_images, wa
     if wv < 1:
         raise InputError(f"the dispersion span {offsets.max():.1f} px leaves no view width in "
                          f"boxes {masks.shape[3]} px wide")
+    if grid not in ("union", "centre"):
+        raise InputError(f"grid must be 'union' or 'centre', got {grid!r}")
+    width = union_width(masks, offsets, hv_, wv) if grid == "union" else wv
     return Calibration(view_ids=ids, view_boxes=view_boxes, homographies=hv_,
                        mask_images=masks, offsets=offsets,
                        gains=np.ones(n_bands) if gains is None else gains,
-                       wavelengths=wavelengths, cube_shape=(masks.shape[2], wv, n_bands),
+                       wavelengths=wavelengths, cube_shape=(masks.shape[2], width, n_bands),
                        design_hash=design_hash, captures=list(captures))
+
+
+def coded_columns(mask_images, offsets, view_width: int, level: float = 0.1) -> np.ndarray:
+    r"""(K, 2) first and last view-image column that the mask codes in each view.
+
+    View column :math:`x` of band :math:`l` lands on box column :math:`x + o_{k,l}`; a column
+    is coded when, in some band, the mean of its mask-image column exceeds ``level`` × the
+    view's typical open column mean (the median over the columns with any light).
+    """
+    c = np.asarray(mask_images, dtype=np.float32)
+    o = np.asarray(offsets, dtype=np.float64)
+    k, n_bands, _, wm = c.shape
+    out = np.empty((k, 2), dtype=np.int64)
+    x = np.arange(view_width)
+    for i in range(k):
+        prof = c[i].mean(axis=1)                                   # (L, Wm)
+        lit = prof[prof > 0]
+        ref = float(np.median(lit)) if lit.size else 0.0
+        coded = np.zeros(view_width, dtype=bool)
+        for l in range(n_bands):
+            cols = np.clip(np.round(x + o[i, l]).astype(np.int64), 0, wm - 1)
+            coded |= prof[l, cols] > level * ref
+        on = np.nonzero(coded)[0]
+        out[i] = (on[0], on[-1]) if on.size else (0, view_width - 1)
+    return out
+
+
+def union_width(mask_images, offsets, homographies, view_width: int,
+                limit: float = 1.5) -> int:
+    r"""Width of the reconstruction grid that holds every view's coded columns.
+
+    The grid starts at the centre view's column 0 (the first column its mask codes, at the
+    band with the smallest offset).  A mirrored view's mask codes the scene columns under the
+    centre's guard stripe instead of the centre's first ones: every view's coded rectangle
+    (:func:`coded_columns` × all rows), pulled back to centre coordinates through
+    :math:`H_k^{-1}`, must lie on the grid, so the grid is as wide as the largest pulled-back
+    column (at least ``view_width``, at most ``limit`` × it, against a wild homography).
+    Columns a view sees left of the centre's column 0 stay off the grid (a pixel or two of
+    shear at the top and bottom views).
+    """
+    hs = np.asarray(homographies, dtype=np.float64)
+    c = np.asarray(mask_images)
+    hv = c.shape[2]
+    cols = coded_columns(c, offsets, view_width)
+    right = float(view_width - 1)
+    for i in range(hs.shape[0]):
+        x0, x1 = (float(v) for v in cols[i])
+        pts = np.array([[x0, 0.0], [x0, hv - 1.0], [x1, 0.0], [x1, hv - 1.0]])
+        inv = np.linalg.inv(hs[i])
+        q = pts @ inv[:, :2].T + inv[:, 2]
+        right = max(right, float(np.max(q[:, 0] / q[:, 2])))
+    # A quarter-pixel tolerance: the homographies are good to a few tenths of a pixel.
+    return int(min(math.ceil(right - 0.25) + 1, math.floor(limit * view_width)))
 
 
 def _snap(o: np.ndarray, tol: float) -> np.ndarray:
@@ -193,9 +269,31 @@ def _paths(path) -> tuple[Path, Path]:
     return p.with_name(p.name + ".npz"), p.with_name(p.name + ".json")
 
 
-def calibration_path(cache_dir, design_hash) -> Path:
-    """``<cache_dir>/calibration-<design_hash>.npz`` (sidecar: same name, ``.json``)."""
-    return Path(cache_dir) / f"calibration-{check_hash(design_hash)}.npz"
+def code_version() -> str:
+    """The calibration code's version: :data:`CODE_VERSION` and a digest of the sources of
+    :mod:`recon.calibration`, so that a cached calibration made by other code is not reused.
+
+    :data:`CODE_VERSION` covers what the digest cannot see: bump it when the capture renderer
+    or the application layer that runs the steps (``kaleidospec.pipeline``) changes what a
+    calibration holds.
+    """
+    global _CODE_VERSION
+    if _CODE_VERSION is None:
+        import hashlib
+
+        h = hashlib.sha256()
+        for p in sorted(Path(__file__).resolve().parent.glob("*.py")):
+            h.update(p.name.encode())
+            h.update(p.read_bytes())
+        _CODE_VERSION = f"{CODE_VERSION}-{h.hexdigest()[:10]}"
+    return _CODE_VERSION
+
+
+def calibration_path(cache_dir, design_hash, version: str | None = None) -> Path:
+    """``<cache_dir>/calibration-<design_hash>-v<version>.npz`` (sidecar: same name,
+    ``.json``); ``version`` defaults to :func:`code_version`."""
+    v = code_version() if version is None else check_hash(version)
+    return Path(cache_dir) / f"calibration-{check_hash(design_hash)}-v{v}.npz"
 
 
 def save_calibration(path, cal: Calibration, *, protect=()) -> tuple[Path, Path]:

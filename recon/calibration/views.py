@@ -86,7 +86,8 @@ def crop(frame: np.ndarray, box) -> np.ndarray:
 
 
 def find_view_boxes(white, view_ids=(0, 1, 2, 3, 4), dark=None, grid: int = 3,
-                    level: float = 0.25, margin: int = 0) -> np.ndarray:
+                    level: float = 0.25, margin: int = 0, margin_x: int | None = None
+                    ) -> np.ndarray:
     r"""Find each view's rectangle on the sensor from a uniform-white capture.
 
     Parameters
@@ -109,6 +110,11 @@ def find_view_boxes(white, view_ids=(0, 1, 2, 3, 4), dark=None, grid: int = 3,
         edge then moves out by a fraction of the blur radius, which ``margin`` covers.
     margin : int
         Pixels added on every side of every box (e.g. to keep a blurred rim).
+    margin_x : int, optional
+        Pixels added on the left and right of every box instead of ``margin``, *at most*: it is
+        reduced as far as needed for the boxes to stay apart and on the sensor (the rows of
+        views may touch, the dispersed columns have a gap).  A view's outermost columns are
+        lit by one band only and fall under ``level``; this keeps them in the box.
 
     Returns
     -------
@@ -159,17 +165,43 @@ def find_view_boxes(white, view_ids=(0, 1, 2, 3, 4), dark=None, grid: int = 3,
 
     hv = int(lit[:, 2].max()) + 2 * margin
     wm = int(lit[:, 3].max()) + 2 * margin
+    if margin_x is not None:
+        if int(margin_x) < 0:
+            raise InputError(f"margin_x must be >= 0, got {margin_x}")
+        wm = int(lit[:, 3].max())
+        for mx in range(int(margin_x), -1, -1):
+            boxes = _grow(lit, hv, wm + 2 * mx, (hs, ws), ids, strict=mx == 0)
+            if boxes is not None and _disjoint(boxes):
+                return boxes
+    boxes = _grow(lit, hv, wm, (hs, ws), ids, strict=True)
+    _check_disjoint(boxes, ids)
+    return boxes
+
+
+def _grow(lit, hv, wm, sensor, ids, strict):
+    """Boxes of size (hv, wm) grown symmetrically about the lit extents; ``None`` (or, when
+    ``strict``, an InputError) if one would leave the sensor."""
+    hs, ws = sensor
     boxes = np.empty_like(lit)
     for i, (y0, x0, h, w) in enumerate(lit):
         # Grow symmetrically (the odd pixel goes after) so a view's lit area stays centred.
         by = y0 - (hv - h) // 2
         bx = x0 - (wm - w) // 2
         if by < 0 or bx < 0 or by + hv > hs or bx + wm > ws:
+            if not strict:
+                return None
             raise InputError(f"view {ids[i]}'s box ({by}, {bx}, {hv}, {wm}) leaves the sensor "
                              f"{hs}x{ws}; use a smaller margin")
         boxes[i] = (by, bx, hv, wm)
-    _check_disjoint(boxes, ids)
     return boxes
+
+
+def _disjoint(boxes) -> bool:
+    try:
+        _check_disjoint(boxes, list(range(len(boxes))))
+    except InputError:
+        return False
+    return True
 
 
 def _lit_extent(profile: np.ndarray, level: float) -> tuple[int, int]:

@@ -47,10 +47,12 @@ def test_calibration_is_cached_and_sane(setup, cache):
     span = cal.offsets[0, -1] - cal.offsets[0, 0]
     want = d.dispersion_px[-1] - d.dispersion_px[0]
     assert abs(span - want) < 1.0
-    # The grid is the centre view's coded region: at most the view, at least all but the guard.
+    # The grid is the union of what the views code: the centre's coded columns and its guard
+    # columns, which the mirrored views see (their x-scale differs from 1 by a few %).
     h, w, L = cal.cube_shape
     v = d.view_size_px
-    assert L == d.n_bands and abs(h - v) <= 2 and v - d.guard_px - 4 <= w <= v
+    assert L == d.n_bands and abs(h - v) <= 2 and v - 2 <= w <= v + 8
+    assert cal.view_shape[1] >= v - d.guard_px
 
 
 def test_truth_on_grid_matches_the_reconstruction_grid(setup):
@@ -71,7 +73,7 @@ def test_more_views_reconstruct_better(setup):
     pipeline, d, cal, frame, meta, truth, wl = setup
     res = {}
     for n in (1, 5):
-        cube, info = pipeline.reconstruct_views(frame, meta, cal, n, iters=30, truth=truth)
+        cube, info = pipeline.reconstruct_views(frame, meta, cal, n, truth=truth)
         assert cube.shape == tuple(cal.cube_shape)
         res[n] = info["metrics"]["psnr"]
     assert res[5] > res[1]
@@ -79,6 +81,22 @@ def test_more_views_reconstruct_better(setup):
     from recon.metrics import psnr
 
     assert res[1] > psnr(flat, info["truth_grid"]) + 3
+
+
+#: Measured on this design and frame (FISTA-TV, the pipeline's defaults, 5 views): the exact
+#: operator reaches 36.4 dB, the calibrated one 24.5 dB.  The gap is the shifted-mask model's
+#: error: with 50 nm bands each band smears over up to ~3 px, and C_l (S_l f) is not
+#: K_l * (M f) where the scene varies (11 bands of 25 nm: a 3-7 dB gap).  The margin is the
+#: measured gap plus 1 dB: a regression guard until the operator models the smear, not a target.
+ORACLE_MARGIN_DB = 13.0
+
+
+def test_calibrated_is_within_a_margin_of_the_oracle(setup):
+    pipeline, d, cal, frame, meta, truth, wl = setup
+    _, info = pipeline.reconstruct_views(frame, meta, cal, 5, truth=truth)
+    _, oinfo = pipeline.reconstruct_oracle(frame, meta, d, 5, truth=truth)
+    gap = oinfo["metrics"]["psnr"] - info["metrics"]["psnr"]
+    assert gap < ORACLE_MARGIN_DB, (oinfo["metrics"]["psnr"], info["metrics"]["psnr"])
 
 
 def test_bad_input(setup):

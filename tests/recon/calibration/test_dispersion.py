@@ -98,3 +98,20 @@ def test_bad_inputs():
         fit_dispersion(lam, np.zeros((1, 3)), degree=0)
     with pytest.raises(InputError, match="positive"):
         fit_dispersion(-lam, np.zeros((1, 3)), degree=1)
+
+
+def test_phase_normalisation_keeps_each_views_subpixel_phase():
+    from recon.calibration.dispersion import normalise_offsets_phase
+
+    o, shift = normalise_offsets_phase([[3.25, 5.5], [12.75, 14.0]])
+    np.testing.assert_allclose(o, [[0.25, 2.5], [0.75, 2.0]])
+    np.testing.assert_array_equal(shift, [3.0, 12.0])
+    assert np.all(np.mod(shift, 1) == 0) and o.min() >= 0 and np.all(o.min(axis=1) < 1)
+
+
+def test_fit_positions_include_the_line_column():
+    lam = np.linspace(450, 700, 6)
+    phi = 40.0 / (lam / 100) ** 2
+    cen = np.stack([phi + 12.3, phi + 30.0])
+    fit = fit_dispersion(lam, cen, ref_nm=550.0, degree=3)
+    np.testing.assert_allclose(fit.positions(lam), cen, atol=1e-6)

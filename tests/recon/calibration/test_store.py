@@ -142,3 +142,26 @@ def test_validation():
                           box_homographies=cal.homographies[1:], mask_images=cal.mask_images[1:],
                           wavelengths=cal.wavelengths, dispersion=cal.offsets[1:],
                           checker_dispersion=cal.offsets[1:, 2])
+
+
+def test_cache_key_holds_the_calibration_code_version(tmp_path):
+    from recon.calibration.store import CODE_VERSION, calibration_path, code_version
+
+    p = calibration_path(tmp_path, "abc123")
+    assert code_version() in p.name and p.name.startswith("calibration-abc123-v")
+    assert code_version().startswith(f"{CODE_VERSION}-")
+    assert calibration_path(tmp_path, "abc123", version="old") != p
+
+
+def test_union_width_covers_a_mirrored_views_coded_columns():
+    from recon.calibration.store import union_width
+
+    hv, wm, wv = 20, 40, 30
+    masks = np.zeros((2, 1, hv, wm), np.float32)
+    masks[:, :, :, 0:24] = 0.5            # both views code view columns 0..23, guard after
+    offsets = np.zeros((2, 1))
+    mirror = np.array([[-1.0, 0, 29.0], [0, 1, 0], [0, 0, 1]])   # view x = 29 - centre x
+    width = union_width(masks, offsets, np.stack([np.eye(3), mirror]), wv)
+    # The mirror's coded columns 0..23 are centre columns 29..6: the grid must reach 29.
+    assert width == 30
+    assert union_width(masks, offsets, np.stack([np.eye(3), np.eye(3)]), wv) == wv

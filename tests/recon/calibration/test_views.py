@@ -113,3 +113,17 @@ def test_check_boxes():
         check_boxes([[0.5, 0, 4, 5]])
     with pytest.raises(InputError, match=r"\(K, 4\)"):
         check_boxes([0, 0, 4, 5])
+
+
+def test_margin_x_grows_boxes_only_as_far_as_they_stay_apart():
+    rng = np.random.default_rng(5)
+    img, truth = _sensor(rng, 64, 90, gap_y=0, gap_x=9)      # rows touch, columns have a gap
+    ids = tuple(range(9))
+    base = find_view_boxes(img, ids)
+    np.testing.assert_array_equal(base, truth)
+    two = find_view_boxes(img, ids, margin_x=2)
+    np.testing.assert_array_equal(two[:, 1], truth[:, 1] - 2)
+    assert np.all(two[:, 3] == 94) and np.all(two[:, 2] == 64)
+    # A 9-px gap leaves room for 4 px per side at most; asking for more never overlaps.
+    wide = find_view_boxes(img, ids, margin_x=100)
+    assert np.all(wide[:, 3] <= 90 + 2 * 4) and np.all(wide[:, 3] >= 94)
