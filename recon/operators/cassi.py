@@ -27,9 +27,6 @@ preallocated buffers; the comments above ``CassiOperator._forward`` explain thei
 
 from __future__ import annotations
 
-import os
-import threading
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -170,8 +167,25 @@ class CassiOperator(LinearOperator):
         sub = [k for k in perm if self._plan[k].subpixel]
         q = np.zeros((len(sub), hv, wm), dtype=dt)
         qk = dict(zip(sub, q))
-        if perm:
-            _run_rows(hv, self._forward_rows, x, perm, acc, qk, masks, dt)
+        pad = np.zeros((STRIP_ROWS, wm), dtype=dt)
+        for r0 in range(0, hv if perm else 0, STRIP_ROWS):
+            r1 = min(hv, r0 + STRIP_ROWS)
+            n = (r1 - r0 - 1) * wm + wv
+            body, flat = pad[:r1 - r0, :wv], pad.reshape(-1)[:n]
+            gs = [acc[k][r0:r1].reshape(-1) for k in perm]
+            qs = [qk[k][r0:r1].reshape(-1) if k in qk else None for k in perm]
+            ms = [masks[k][r0:r1] for k in perm]
+            for l in range(self.n_bands):
+                xs = x[l, r0:r1]
+                for i, k in enumerate(perm):
+                    a, t = self._plan[k].parts[l]
+                    np.multiply(xs, ms[i], out=body)
+                    seg = gs[i][a:a + n]
+                    np.add(seg, flat, out=seg)
+                    if t != 0.0:
+                        flat *= t
+                        seg = qs[i][a:a + n]
+                        np.add(seg, flat, out=seg)
         for k in perm:
             g = acc[k].reshape(-1)
             if k in qk:
@@ -224,8 +238,32 @@ class CassiOperator(LinearOperator):
                 yf = ys[k].reshape(-1)
                 np.subtract(yf[1:], yf[:-1], out=d.reshape(-1)[:-1])
                 dys[k] = d
-        if perm:
-            _run_rows(hv, self._adjoint_rows, out, perm, ys, dys, masks, dt)
+        zbuf = np.zeros(STRIP_ROWS * wm, dtype=dt)
+        scratch = np.empty(STRIP_ROWS * wm, dtype=dt)
+        band = np.empty((STRIP_ROWS, wv), dtype=dt)
+        for r0 in range(0, hv if perm else 0, STRIP_ROWS):
+            r1 = min(hv, r0 + STRIP_ROWS)
+            nr = r1 - r0
+            n = (nr - 1) * wm + wv
+            zn, sc, b = zbuf[:n], scratch[:n], band[:nr]
+            z = zbuf[:nr * wm].reshape(nr, wm)[:, :wv]
+            yk = [ys[k][r0:r1].reshape(-1) for k in perm]
+            dk = [dys[k][r0:r1].reshape(-1) if k in dys else None for k in perm]
+            ms = [masks[k][r0:r1] for k in perm]
+            for l in range(self.n_bands):
+                o = out[l, r0:r1]
+                for i, k in enumerate(perm):
+                    a, t = self._plan[k].parts[l]
+                    if t == 0.0:
+                        np.copyto(zn, yk[i][a:a + n])
+                    else:
+                        np.multiply(dk[i][a:a + n], t, out=sc)
+                        np.add(sc, yk[i][a:a + n], out=zn)
+                    if i == 0:
+                        np.multiply(z, ms[i], out=o)
+                    else:
+                        np.multiply(z, ms[i], out=b)
+                        np.add(o, b, out=o)
         # Resampled views.
         n = (hv - 1) * wm + wv
         zflat = np.zeros(hv * wm, dtype=dt)
@@ -249,61 +287,6 @@ class CassiOperator(LinearOperator):
             out += plan.warp.apply_adjoint(tmp)
         return out
 
-    def _forward_rows(self, r_lo, r_hi, x, perm, acc, qk, masks, dt):
-        """The strip loop of :meth:`_forward` over rows ``r_lo:r_hi`` (rows are independent)."""
-        hv, wv = self.views[0].mask.shape
-        wm = self.oshape[2]
-        pad = np.zeros((STRIP_ROWS, wm), dtype=dt)
-        for r0 in range(r_lo, r_hi, STRIP_ROWS):
-            r1 = min(r_hi, r0 + STRIP_ROWS)
-            n = (r1 - r0 - 1) * wm + wv
-            body, flat = pad[:r1 - r0, :wv], pad.reshape(-1)[:n]
-            gs = [acc[k][r0:r1].reshape(-1) for k in perm]
-            qs = [qk[k][r0:r1].reshape(-1) if k in qk else None for k in perm]
-            ms = [masks[k][r0:r1] for k in perm]
-            for l in range(self.n_bands):
-                xs = x[l, r0:r1]
-                for i, k in enumerate(perm):
-                    a, t = self._plan[k].parts[l]
-                    np.multiply(xs, ms[i], out=body)
-                    seg = gs[i][a:a + n]
-                    np.add(seg, flat, out=seg)
-                    if t != 0.0:
-                        flat *= t
-                        seg = qs[i][a:a + n]
-                        np.add(seg, flat, out=seg)
-
-    def _adjoint_rows(self, r_lo, r_hi, out, perm, ys, dys, masks, dt):
-        """The strip loop of :meth:`_adjoint` over rows ``r_lo:r_hi`` (rows are independent)."""
-        hv, wv = self.views[0].mask.shape
-        wm = self.oshape[2]
-        zbuf = np.zeros(STRIP_ROWS * wm, dtype=dt)
-        scratch = np.empty(STRIP_ROWS * wm, dtype=dt)
-        band = np.empty((STRIP_ROWS, wv), dtype=dt)
-        for r0 in range(r_lo, r_hi, STRIP_ROWS):
-            r1 = min(r_hi, r0 + STRIP_ROWS)
-            nr = r1 - r0
-            n = (nr - 1) * wm + wv
-            zn, sc, b = zbuf[:n], scratch[:n], band[:nr]
-            z = zbuf[:nr * wm].reshape(nr, wm)[:, :wv]
-            yk = [ys[k][r0:r1].reshape(-1) for k in perm]
-            dk = [dys[k][r0:r1].reshape(-1) if k in dys else None for k in perm]
-            ms = [masks[k][r0:r1] for k in perm]
-            for l in range(self.n_bands):
-                o = out[l, r0:r1]
-                for i, k in enumerate(perm):
-                    a, t = self._plan[k].parts[l]
-                    if t == 0.0:
-                        np.copyto(zn, yk[i][a:a + n])
-                    else:
-                        np.multiply(dk[i][a:a + n], t, out=sc)
-                        np.add(sc, yk[i][a:a + n], out=zn)
-                    if i == 0:
-                        np.multiply(z, ms[i], out=o)
-                    else:
-                        np.multiply(z, ms[i], out=b)
-                        np.add(o, b, out=o)
-
     def row_norms_sq(self) -> np.ndarray:
         r"""Diagonal of :math:`HH^\top`, shape ``oshape`` (float64), in closed form.
 
@@ -326,43 +309,6 @@ class CassiOperator(LinearOperator):
     def __repr__(self):
         return (f"<CassiOperator {self.n_views} view(s), {self.n_bands} bands: "
                 f"{self.ishape} -> {self.oshape}>")
-
-
-#: Worker threads of the strip loops (NumPy releases the GIL inside each ufunc); 1 = serial.
-#: ``None`` means the number of CPUs, at most 4.
-THREADS: int | None = None
-_POOL: ThreadPoolExecutor | None = None
-_POOL_SIZE = 0
-_POOL_LOCK = threading.Lock()
-
-
-def _n_threads() -> int:
-    return max(1, int(THREADS)) if THREADS is not None else max(1, min(4, os.cpu_count() or 1))
-
-
-def _run_rows(hv: int, fn, *args) -> None:
-    """Run ``fn(r_lo, r_hi, *args)`` over contiguous row ranges of whole strips, in parallel.
-
-    Every strip writes only its own rows (of the measurement, or of every band of the cube),
-    so the ranges are independent and the result is the same as a serial loop, bit for bit.
-    """
-    global _POOL, _POOL_SIZE
-    n_strips = -(-hv // STRIP_ROWS)
-    n = min(_n_threads(), n_strips)
-    if n <= 1:
-        fn(0, hv, *args)
-        return
-    edges = [STRIP_ROWS * (n_strips * i // n) for i in range(n)] + [hv]
-    with _POOL_LOCK:
-        if _POOL is None or _POOL_SIZE < n:
-            if _POOL is not None:
-                _POOL.shutdown(wait=False)
-            _POOL = ThreadPoolExecutor(max_workers=n, thread_name_prefix="recon-cassi")
-            _POOL_SIZE = n
-        pool = _POOL
-    jobs = [pool.submit(fn, a, b, *args) for a, b in zip(edges[:-1], edges[1:]) if b > a]
-    for job in jobs:
-        job.result()
 
 
 @dataclass

@@ -165,7 +165,8 @@ def tv_norm_per_band(x: np.ndarray, isotropic: bool = True,
 
 
 # Bytes of one strip of rows in tv_norm: with its two scratch strips it stays in L2; measured
-# at 645x501x25 (2 cores): 15 ms against 67 ms for whole-cube passes, 32 ms at 16 KiB strips.
+# at 645x501x25 (one thread): 15 ms against 67 ms for the former whole-cube passes (which
+# allocated three cube-sized temporaries), 32 ms at 16 KiB strips.
 _TV_STRIP_BYTES = 1 << 18
 
 
@@ -229,7 +230,6 @@ def _pool(n: int) -> ThreadPoolExecutor:
         return _POOL
 
 
-
 def parallel_spans(fn, n: int, threads: int | None = None, min_span: int = 1 << 16) -> None:
     """Call ``fn(a, b)`` over contiguous spans covering ``range(n)``, on the thread pool.
 
@@ -244,6 +244,7 @@ def parallel_spans(fn, n: int, threads: int | None = None, min_span: int = 1 << 
         return
     for job in [_pool(n_threads).submit(fn, a, b) for a, b in zip(edges[:-1], edges[1:])]:
         job.result()
+
 
 # Bands are processed in chunks of about this many bytes per array, so that the ~7 arrays a
 # chunk touches stay in a core's cache across the dozen passes of one dual iteration (measured:

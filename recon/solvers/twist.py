@@ -230,6 +230,7 @@ def twist(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float = 0.
         ist_svd = None       # max_svd for which `ist` holds Gamma(x)
         ist_f = None         # objective at `ist`, once computed
         tries = refined = 0
+        svd_at_start = max_svd
         while True:
             if ist_svd != max_svd:
                 np.multiply(grad, 1.0 / max_svd, out=vin)
@@ -270,7 +271,11 @@ def twist(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float = 0.
                     doublings += 1
                     tries += 1
                     continue
-                # No step decreases the objective (rounding at convergence): stay put.
+                # No step decreases the objective (rounding at convergence): stay put.  The
+                # doublings did not help, so s was not the cause: undo them, or they pile up
+                # over iterations until s overflows float32 and the iterate becomes NaN.
+                doublings -= tries
+                max_svd = svd_at_start
                 f_val = prev_f
                 np.copyto(xm1, x)
                 np.copyto(resid_m1, resid)

@@ -285,22 +285,3 @@ def test_shape_checks_on_apply():
     with pytest.raises(ValueError):
         op.adjoint(np.ones((3, 5)))
 
-
-@pytest.mark.parametrize("threads", [2, 3, 8])
-def test_threaded_strips_match_serial_bit_for_bit(monkeypatch, threads):
-    # Several strips of STRIP_ROWS rows (and a partial last one), flipped and sub-pixel views.
-    import recon.operators.cassi as cassi
-
-    rng = np.random.default_rng(11)
-    hv, wv, n_bands = 3 * cassi.STRIP_ROWS + 5, 23, 6
-    masks = rng.random((5, hv, wv)).astype(np.float32)
-    phi = np.array([0.0, 1.3, 2.9, 4.0, 5.55, 7.2])
-    op = kaleidoscope_cassi(masks, phi, 5)
-    x = rng.random(op.ishape, dtype=np.float32)
-    y = rng.random(op.oshape, dtype=np.float32)
-    monkeypatch.setattr(cassi, "THREADS", 1)
-    fwd1, adj1 = op.forward(x), op.adjoint(y)
-    monkeypatch.setattr(cassi, "THREADS", threads)
-    np.testing.assert_array_equal(op.forward(x), fwd1)
-    np.testing.assert_array_equal(op.adjoint(y), adj1)
-    assert dot_test(op, rng) < 1e-6
