@@ -48,7 +48,7 @@ def reconstruct(
     step: int = typer.Option(..., "--step", help="Dispersion step in pixels per band."),
     out: Path = typer.Option(..., "--out", "-o", help="Output cube (.npz, .npy, .exr or .mat)."),
     bands: Optional[int] = typer.Option(None, "--bands", help="Number of bands (default: what the widths imply, (Wm − W)/step + 1)."),
-    solver: str = typer.Option("gap-tv", "--solver", help="Solver: twist, gap-tv, admm-tv (those recon.solvers offers)."),
+    solver: str = typer.Option("gap-tv", "--solver", help="Solver: gap-tv (fastest on clean data), fista-tv (robust to noise) or twist (the paper's)."),
     iters: int = typer.Option(50, "--iters", help="Iterations."),
     tau: Optional[float] = typer.Option(None, "--tau", help="TV weight (default: the solver's own)."),
     truth: Optional[Path] = typer.Option(None, "--truth", help="Reference cube (H, W, L) for PSNR/SSIM/SAM."),

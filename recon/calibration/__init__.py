@@ -4,7 +4,8 @@ Works on raw frames only (NumPy, OpenCV, scikit-image), as with real hardware:
 
 - :mod:`~recon.calibration.views`: the views' rectangles on the sensor (uniform white),
 - :mod:`~recon.calibration.dispersion`: :math:`\\varphi_k(\\lambda)` from line captures,
-- :mod:`~recon.calibration.mask`: per-band mask images from monochromatic white captures,
+- :mod:`~recon.calibration.mask`: per-band mask images from monochromatic white captures, and
+  every view's mask in view coordinates from all of them jointly (the smeared model),
 - :mod:`~recon.calibration.geometry`: homographies to the centre view (checkerboard),
 - :mod:`~recon.calibration.radiometry`: per-band gains (ColorChecker),
 - :mod:`~recon.calibration.store`: one ``.npz`` + JSON file, cached by design hash,
@@ -14,11 +15,12 @@ Typical order: views → dispersion → masks → geometry → :func:`build_cali
 reconstruct the ColorChecker → radiometry.
 """
 
-from recon.calibration.dispersion import (DispersionFit, fit_dispersion, line_centroids,
-                                          normalise_offsets, normalise_offsets_phase)
+from recon.calibration.dispersion import (DispersionFit, band_positions, fit_dispersion,
+                                          line_centroids, normalise_offsets,
+                                          normalise_offsets_phase)
 from recon.calibration.geometry import (apply_homography, find_corners, refine_homography,
                                         to_view_coordinates, unmask, view_homographies)
-from recon.calibration.mask import airy_kernel, airy_radius_px, mask_images
+from recon.calibration.mask import airy_kernel, airy_radius_px, mask_images, view_masks
 from recon.calibration.operator import (check_design, measurements, operator_from_calibration,
                                         read_measurements)
 from recon.calibration.radiometry import apply_gains, fit_gains, patch_spectra
@@ -28,10 +30,10 @@ from recon.calibration.views import VIEW_FLIPS, VIEW_GRID, find_view_boxes
 
 __all__ = [
     "Calibration", "DispersionFit", "VIEW_FLIPS", "VIEW_GRID", "airy_kernel", "airy_radius_px",
-    "apply_gains", "apply_homography", "build_calibration", "calibration_path", "check_design",
+    "apply_gains", "apply_homography", "band_positions", "build_calibration", "calibration_path", "check_design",
     "find_corners", "find_view_boxes", "fit_dispersion", "fit_gains", "line_centroids",
     "load_cached", "load_calibration", "mask_images", "measurements", "normalise_offsets",
     "normalise_offsets_phase",
     "operator_from_calibration", "patch_spectra", "read_measurements", "refine_homography",
-    "save_calibration", "to_view_coordinates", "unmask", "view_homographies",
+    "save_calibration", "to_view_coordinates", "unmask", "view_homographies", "view_masks",
 ]

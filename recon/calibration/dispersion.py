@@ -155,6 +155,37 @@ def fit_dispersion(wavelengths_nm, centroids, ref_nm: float | None = 550.0,
                          intercept=np.ascontiguousarray(sol[0]))
 
 
+def band_positions(fit: DispersionFit, intervals_nm, samples: int = 32) -> np.ndarray:
+    r"""Fitted line positions across every band: (K, L, S) box columns.
+
+    A band of width :math:`[\lambda_\mathrm{lo}, \lambda_\mathrm{hi}]` (a band-pass filter's
+    interval, or the midpoints between neighbouring band centres) lands on the sensor spread
+    over :math:`\varphi(\lambda_\mathrm{lo}) \ldots \varphi(\lambda_\mathrm{hi})`.  The
+    positions :meth:`DispersionFit.positions` at the midpoints of ``samples`` equal
+    sub-intervals are the evenly weighted samples from which
+    :func:`~recon.operators.smeared.taps_from_positions` builds the band's smear kernel.
+
+    Parameters
+    ----------
+    fit : DispersionFit
+    intervals_nm : (L, 2) array_like
+        ``[lo, hi]`` per band, nm, ``lo <= hi``.
+    samples : int
+        Wavelengths per band (>= 1; 1 is the band centre of the interval).
+    """
+    iv = np.asarray(intervals_nm, dtype=np.float64)
+    if iv.ndim != 2 or iv.shape[1] != 2 or not np.all(np.isfinite(iv)) \
+            or np.any(iv[:, 0] <= 0) or np.any(iv[:, 1] < iv[:, 0]):
+        raise InputError(f"band intervals must be (L, 2) positive [lo, hi], got shape {iv.shape}")
+    if int(samples) < 1:
+        raise InputError(f"samples must be >= 1, got {samples}")
+    s = int(samples)
+    u = (np.arange(s) + 0.5) / s
+    lam = iv[:, :1] + (iv[:, 1:] - iv[:, :1]) * u[None, :]                # (L, S)
+    pos = fit.positions(lam.ravel())                                       # (K, L*S)
+    return pos.reshape(pos.shape[0], iv.shape[0], s)
+
+
 def normalise_offsets_phase(offsets) -> tuple[np.ndarray, np.ndarray]:
     r"""Shift every view's row of a (K, L) table of *line positions* by a whole number of
     columns so that its smallest entry is in [0, 1).

@@ -145,6 +145,123 @@ def mask_images(white_captures, view_boxes, dark=None, airy_radius=None, rl_iter
     return np.clip(out, 0.0, 1.0).astype(np.float32)
 
 
+def view_masks(white_captures, view_boxes, tap_start, tap_weights, view_width: int, *,
+               dark=None, airy_radius=None, rl_iterations: int = 30, percentile: float = 99.0,
+               rounds: int = 3, iterations: int = 100) -> tuple[np.ndarray, np.ndarray]:
+    r"""Every view's mask :math:`M_k` in view coordinates, jointly from all per-band whites.
+
+    Under the uniform white of band :math:`l` the box of view :math:`k` records
+    :math:`I_{k,l} = E_l\, D_{k,l} M_k` (the mask, then the band's dispersion smear
+    :math:`D_{k,l}`, :class:`~recon.operators.smeared.SmearedCassi`).  With
+    :math:`C_{k,l} = I_{k,l} / w_l` (:func:`white_levels`) and per-band scales
+    :math:`\alpha_l` (the percentile level of a band whose smear is wider than the mask cells
+    is lower than :math:`E_l`), each view's mask solves
+
+    .. math:: \min_{0 \le M_k \le u} \sum_l \|\alpha_l D_{k,l} M_k - C_{k,l}\|^2,
+
+    row by row with one normal matrix :math:`N_k = \sum_l \alpha_l^2 D_{k,l}^\top D_{k,l}`
+    (:math:`W_v \times W_v`, shared by the rows): the unconstrained solution
+    :math:`M_k = B_k N_k^{-1}` clipped, then accelerated projected-gradient steps
+    :math:`M \leftarrow \Pi(M - (MN - B)/\|N\|)` for all rows at once.  Then
+    :math:`\alpha_l = \sum_k\langle D M_k, C_{k,l}\rangle / \sum_k\|D M_k\|^2` and the masks are
+    scaled so that their open level (``percentile`` of the open pixels, all views) is 1; this
+    alternates ``rounds`` times, the last one with the bound :math:`u = 1` (before it
+    :math:`u = \infty`, so that the scale is not clipped away).  Averaging over all bands lowers
+    the noise of :math:`M_k` below that of any one capture.
+
+    Parameters
+    ----------
+    white_captures : (L, H, W) or (L, N, H, W) array_like
+        As for :func:`mask_images`.
+    view_boxes : (K, 4) array_like
+    tap_start : (K, L) array_like of int
+        First box column of each band's kernel (view column 0 lands there with the first tap).
+    tap_weights : (K, L, T) array_like
+        The kernels (:func:`~recon.operators.smeared.taps_from_positions`).
+    view_width : int
+        :math:`W_v`; every kernel must fit: :math:`s + j + W_v \le W_m`.
+    dark, airy_radius, rl_iterations, percentile
+        As for :func:`mask_images`.
+    rounds : int
+        Alternations between the masks and the per-band scales (>= 1).
+    iterations : int
+        Projected-gradient iterations per solve.
+
+    Returns
+    -------
+    masks : (K, Hv, Wv) float32
+        :math:`M_k` in [0, 1] (relative view throughput kept, as in :func:`mask_images`).
+    levels : (L,) float64
+        Effective white level of each band: DN at an open mask pixel, :math:`w_l \alpha_l`,
+        so that :math:`I_{k,l} \approx \mathrm{levels}_l\, D_{k,l} M_k`.
+    """
+    from recon.operators.smeared import smear_matrix
+
+    views = view_stack(white_captures, view_boxes, dark, "white captures")   # (K, L, h, w)
+    k_, n_bands, hv, wm = views.shape
+    views = np.maximum(views, 0.0)
+    if airy_radius is not None:
+        radii = np.broadcast_to(np.asarray(airy_radius, dtype=np.float64), (n_bands,))
+        if not np.all(radii > 0):
+            raise InputError(f"Airy radii must be positive, got {radii}")
+        views = deconvolve(views, radii, rl_iterations)
+    start = np.asarray(tap_start)
+    weights = np.asarray(tap_weights, dtype=np.float64)
+    wv = int(view_width)
+    if start.shape != (k_, n_bands) or weights.ndim != 3 or weights.shape[:2] != (k_, n_bands):
+        raise InputError(f"tap_start must be (K={k_}, L={n_bands}) and tap_weights "
+                         f"(K, L, T), got {start.shape} and {weights.shape}")
+    if not 1 <= wv <= wm:
+        raise InputError(f"view_width must be in 1..{wm}, got {view_width}")
+    if rounds < 1 or iterations < 0:
+        raise InputError(f"rounds must be >= 1 and iterations >= 0, got {rounds}, {iterations}")
+    reach = start + np.array([[np.max(np.nonzero(w)[0], initial=0) for w in row]
+                              for row in weights])
+    if np.min(start) < 0 or np.max(reach) + wv > wm:
+        raise InputError(f"smear kernels reach column {int(np.max(reach))}: with view width "
+                         f"{wv} they do not fit in boxes {wm} px wide")
+    levels = white_levels(views, percentile=percentile)
+    c = views / levels[None, :, None, None]
+    d = [[smear_matrix(int(start[k, l]), weights[k, l], wv, wm) for l in range(n_bands)]
+         for k in range(k_)]                                         # (Wm, Wv) each
+    alpha = np.ones(n_bands)
+    masks = np.zeros((k_, hv, wv))
+    for r in range(rounds):
+        upper = 1.0 if r == rounds - 1 else np.inf
+        for k in range(k_):
+            n = sum(alpha[l] ** 2 * d[k][l].T @ d[k][l] for l in range(n_bands))
+            b = sum(alpha[l] * c[k, l] @ d[k][l] for l in range(n_bands))      # (Hv, Wv)
+            masks[k] = _box_lsq(n, b, upper, iterations)
+        pred = np.einsum("khv,klmv->klhm", masks, np.asarray(d))            # D_kl M_k
+        num = np.einsum("klhm,klhm->l", pred, c)
+        den = np.einsum("klhm,klhm->l", pred, pred)
+        if not np.all(den > 0):
+            raise InputError("white captures: a band's mask model is dark everywhere")
+        alpha = num / den
+        if r < rounds - 1:
+            top = float(np.percentile(masks, 99.9))
+            if not top > 0:
+                raise InputError("white captures: the recovered masks are dark")
+            q = float(np.percentile(masks[masks > 0.5 * top], percentile))
+            masks /= q
+            alpha *= q
+    return masks.astype(np.float32), levels * alpha
+
+
+def _box_lsq(n: np.ndarray, b: np.ndarray, upper: float, iterations: int) -> np.ndarray:
+    r"""Rows :math:`m` of :math:`\arg\min_{0\le m\le u} \tfrac12 m N m^\top - b\, m^\top`
+    (``b`` (R, W), ``n`` (W, W) symmetric positive definite), all rows at once."""
+    m = np.clip(np.linalg.solve(n, b.T).T, 0.0, upper)
+    step = 1.0 / float(np.linalg.eigvalsh(n)[-1])
+    y, t = m.copy(), 1.0
+    for _ in range(iterations):
+        m_new = np.clip(y - step * (y @ n - b), 0.0, upper)
+        t_new = 0.5 * (1.0 + np.sqrt(1.0 + 4.0 * t * t))
+        y = m_new + ((t - 1.0) / t_new) * (m_new - m)
+        m, t = m_new, t_new
+    return m
+
+
 def deconvolve(views: np.ndarray, radii: np.ndarray, iterations: int = 30) -> np.ndarray:
     r"""Richardson–Lucy deconvolution of (K, L, h, w) crops with the band's Airy kernel.
 

@@ -5,7 +5,16 @@ r"""From a calibration to the forward operator and to the per-view measurements 
 .. math:: g_k = \sum_l C_{k,l} \odot S_{o_{k,l}}\big(W_k f_l\big),
 
 :math:`C` the calibrated mask images, :math:`o` the normalised offsets (absolute columns in the
-view's box) and :math:`W_k` the homography warp (the identity for the centre view).
+view's box) and :math:`W_k` the homography warp (the identity for the centre view) — the
+"shifted-mask" model — or, when the calibration holds it, the "mask, then shift and smear"
+model :class:`recon.operators.smeared.SmearedCassi`
+
+.. math:: g_k = \sum_l D_{k,l}\big(M_k \odot W_k f_l\big),
+
+:math:`M_k` the view masks and :math:`D_{k,l}` the bands' smear kernels.  The shifted-mask model
+multiplies a smeared mask image by a shifted scene, while the instrument masks the scene first
+and then smears each band over its dispersion; where the scene varies within a band's smear
+(a few pixels for 25 nm bands in the blue) only the second is right.
 :func:`measurements` cuts the matching (K, Hv, Wm) stack out of a raw frame with the same boxes.
 """
 
@@ -29,7 +38,27 @@ def _select(cal: Calibration, view_ids) -> list[int]:
     return [cal.view_ids.index(v) for v in ids]
 
 
-def operator_from_calibration(cal: Calibration, view_ids=None):
+#: The calibrated forward models: "smeared" (mask, then shift and smear) and "shifted" (per-band
+#: mask images times the shifted scene); "auto" is "smeared" when the calibration holds it.
+MODELS = ("auto", "smeared", "shifted")
+
+
+def resolve_model(cal: Calibration, model: str = "auto") -> str:
+    """``"smeared"`` or ``"shifted"``: the model ``model`` names for this calibration."""
+    if not isinstance(cal, Calibration):
+        raise InputError(f"expected a Calibration, got {type(cal).__name__}")
+    if model not in MODELS:
+        raise InputError(f"the calibrated model must be one of {', '.join(MODELS)}, got {model!r}")
+    if model == "auto":
+        return "smeared" if cal.has_smeared else "shifted"
+    if model == "smeared" and not cal.has_smeared:
+        raise InputError("the calibration has no view masks and smear kernels (made by older "
+                         "code): recalibrate, or use the 'shifted' model")
+    return model
+
+
+def operator_from_calibration(cal: Calibration, view_ids=None, model: str = "auto",
+                              band_scale=None):
     """The calibrated forward operator for some of the calibrated views.
 
     Parameters
@@ -37,18 +66,27 @@ def operator_from_calibration(cal: Calibration, view_ids=None):
     cal : Calibration
     view_ids : sequence of int, optional
         Views to use, in this order (default: all of the calibration's).
+    model : {"auto", "smeared", "shifted"}
+        See :data:`MODELS` and the module docstring.
+    band_scale : (L,) array_like, optional
+        Multiplies band ``l`` of the model (e.g. the inverse radiometric gains).
 
     Returns
     -------
-    recon.operators.CalibratedCassi
+    recon.operators.SmearedCassi or recon.operators.CalibratedCassi
         ``(L, H, W) -> (K, Hv, Wm)`` with ``(H, W, L) = cal.cube_shape``.
     """
     from recon.operators.calibrated import CalibratedCassi
+    from recon.operators.smeared import SmearedCassi
     from recon.operators.warp import HomographyWarp
 
     idx = _select(cal, view_ids)
+    kind = resolve_model(cal, model)
     h, w, n_bands = cal.cube_shape
     view_shape = cal.view_shape
+    scale = np.ones(n_bands) if band_scale is None else np.asarray(band_scale, np.float64)
+    if scale.shape != (n_bands,) or not np.all(np.isfinite(scale)):
+        raise InputError(f"band_scale must be {n_bands} finite numbers")
     warps = []
     for i in idx:
         m = cal.homographies[i]
@@ -56,8 +94,15 @@ def operator_from_calibration(cal: Calibration, view_ids=None):
             warps.append(None)
         else:
             warps.append(HomographyWarp(m, (h, w), view_shape))
-    return CalibratedCassi(cal.mask_images[idx], cal.offsets[idx], warps=warps,
-                           cube_shape=(n_bands, h, w))
+    if kind == "smeared":
+        # A band's scale multiplies its kernel: D_kl (M_k * W_k f_l) is linear in the weights.
+        return SmearedCassi(cal.view_masks[idx], cal.tap_start[idx],
+                            cal.tap_weights[idx] * scale[None, :, None], warps=warps,
+                            cube_shape=(n_bands, h, w), width=cal.mask_images.shape[3])
+    masks = cal.mask_images[idx]
+    if band_scale is not None:
+        masks = masks * scale.astype(np.float32)[None, :, None, None]
+    return CalibratedCassi(masks, cal.offsets[idx], warps=warps, cube_shape=(n_bands, h, w))
 
 
 def check_design(cal: Calibration, metadata: dict | None, what: str = "raw frame") -> None:

@@ -11,6 +11,16 @@ gains            (L,) float64        radiometric gains (radiance = gain × recon
 wavelengths      (L,) float64        band centres, nm
 ===============  ==================  ===========================================================
 
+and, optionally (the "mask, then shift and smear" model,
+:class:`~recon.operators.smeared.SmearedCassi`; files without them still load),
+
+===============  ==================  ===========================================================
+tap_start        (K, L) int64        first box column of each band's smear kernel
+tap_weights      (K, L, T) float64   the kernels (zero-padded), from the dispersion fit
+view_masks       (K, Hv, Wv) f32     every view's mask in view coordinates
+smear_gains      (L,) float64        radiometric gains of that model
+===============  ==================  ===========================================================
+
 and ``<name>.json`` holds ``design_hash``, ``cube_shape`` ([H, W, L], the API layout),
 ``view_ids``, ``captures`` (what it was made from) and ``created`` (UTC, ISO 8601).  Both files
 are written atomically (image first, then sidecar); loading validates every field and shape.
@@ -36,9 +46,11 @@ FORMAT = "kaleidospec-calibration"
 VERSION = 1
 #: Calibration code version (part of the cache key, :func:`calibration_path`): bump it when the
 #: capture renderer or the pipeline's calibration steps change.
-CODE_VERSION = 2
+CODE_VERSION = 3
 _CODE_VERSION: str | None = None
 ARRAY_FIELDS = ("view_boxes", "homographies", "mask_images", "offsets", "gains", "wavelengths")
+#: Arrays a calibration may hold (saved only when set).
+OPTIONAL_ARRAY_FIELDS = ("tap_start", "tap_weights", "view_masks", "smear_gains")
 JSON_FIELDS = ("design_hash", "cube_shape", "view_ids", "captures", "created")
 _HASH_RE = re.compile(r"^[0-9A-Za-z_-]{1,128}$")
 #: Same tolerance as the operators' offset snapping.
@@ -63,6 +75,10 @@ class Calibration:
     design_hash: str | None = None
     captures: list = field(default_factory=list)
     created: str = ""
+    tap_start: np.ndarray | None = None
+    tap_weights: np.ndarray | None = None
+    view_masks: np.ndarray | None = None
+    smear_gains: np.ndarray | None = None
 
     def __post_init__(self):
         self.view_ids = check_view_ids(self.view_ids)
@@ -93,8 +109,44 @@ class Calibration:
         if self.design_hash is not None:
             self.design_hash = check_hash(self.design_hash)
         self.captures = [str(c) for c in self.captures]
+        self._check_smeared()
         if not self.created:
             self.created = datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+    def _check_smeared(self) -> None:
+        k, n_bands = self.offsets.shape
+        if (self.tap_start is None) != (self.tap_weights is None):
+            raise InputError("tap_start and tap_weights come together")
+        if self.tap_start is None:
+            if self.view_masks is not None or self.smear_gains is not None:
+                raise InputError("view_masks and smear_gains need tap_start and tap_weights")
+            return
+        start = _array(self.tap_start, "tap_start", np.float64, (k, n_bands))
+        if np.any(start != np.round(start)) or np.min(start) < 0:
+            raise InputError("tap_start must hold non-negative integers")
+        self.tap_start = start.astype(np.int64)
+        self.tap_weights = _array(self.tap_weights, "tap_weights", np.float64, None, ndim=3)
+        if self.tap_weights.shape[:2] != (k, n_bands) or self.tap_weights.shape[2] < 1:
+            raise InputError(f"tap_weights has shape {self.tap_weights.shape}, expected "
+                             f"({k}, {n_bands}, T)")
+        if np.any(self.tap_weights < 0):
+            raise InputError("tap_weights must be >= 0")
+        hv, wv = self.view_shape
+        wm = self.mask_images.shape[3]
+        last = np.array([[np.max(np.nonzero(w)[0], initial=0) for w in row]
+                         for row in self.tap_weights])
+        if np.max(self.tap_start + last) + wv > wm:
+            raise InputError(f"smear kernels reach column {int(np.max(self.tap_start + last))}:"
+                             f" with view width {wv} they do not fit in boxes {wm} px wide")
+        if self.view_masks is not None:
+            self.view_masks = _array(self.view_masks, "view_masks", np.float32, (k, hv, wv))
+        if self.smear_gains is not None:
+            self.smear_gains = _array(self.smear_gains, "smear_gains", np.float64, (n_bands,))
+
+    @property
+    def has_smeared(self) -> bool:
+        """Whether the "mask, then shift and smear" model is complete (taps and view masks)."""
+        return self.tap_start is not None and self.view_masks is not None
 
     @property
     def n_views(self) -> int:
@@ -119,7 +171,7 @@ class Calibration:
 def build_calibration(*, view_ids, view_boxes, box_homographies, mask_images, wavelengths,
                       dispersion, checker_dispersion, gains=None, design_hash=None,
                       captures=(), snap_px: float = 0.05, grid: str = "union",
-                      phase: bool = False) -> Calibration:
+                      phase: bool = False, band_positions=None) -> Calibration:
     r"""Assemble a :class:`Calibration` from the results of the individual steps.
 
     Normalises the offsets (smallest 0, :func:`~recon.calibration.dispersion.normalise_offsets`),
@@ -164,6 +216,13 @@ def build_calibration(*, view_ids, view_boxes, box_homographies, mask_images, wa
         under the centre's guard stripe), ``"centre"`` only the centre view's view image
         (:math:`W_v` columns; those scene columns are then missing from the model of the
         mirrored views).
+    band_positions : (K, L, S), optional
+        The same reference as ``dispersion``, sampled evenly across every band's wavelength
+        interval (:func:`~recon.calibration.dispersion.band_positions`): normalised with the
+        same shift, clipped to the box (``[0, ⌈max o⌉]``: light beyond it is not measured) and
+        turned into smear kernels (``tap_start``, ``tap_weights``,
+        :func:`~recon.operators.smeared.taps_from_positions`).  The view masks are recovered
+        afterwards (:func:`~recon.calibration.mask.view_masks`).
     """
     ids = check_view_ids(view_ids)
     if 0 not in ids:
@@ -189,11 +248,23 @@ def build_calibration(*, view_ids, view_boxes, box_homographies, mask_images, wa
     if grid not in ("union", "centre"):
         raise InputError(f"grid must be 'union' or 'centre', got {grid!r}")
     width = union_width(masks, offsets, hv_, wv) if grid == "union" else wv
+    tap_start = tap_weights = None
+    if band_positions is not None:
+        from recon.operators.smeared import taps_from_positions
+
+        bp = np.asarray(band_positions, dtype=np.float64)
+        if bp.ndim != 3 or bp.shape[:2] != phi.shape:
+            raise InputError(f"band_positions must be (K, L, S) with (K, L) = {phi.shape}, "
+                             f"got shape {bp.shape}")
+        shift = shift[:, None, None] if np.ndim(shift) else shift
+        bp = np.clip(bp - shift, 0.0, math.ceil(float(offsets.max()) - _SNAP))
+        tap_start, tap_weights = taps_from_positions(bp)
     return Calibration(view_ids=ids, view_boxes=view_boxes, homographies=hv_,
                        mask_images=masks, offsets=offsets,
                        gains=np.ones(n_bands) if gains is None else gains,
                        wavelengths=wavelengths, cube_shape=(masks.shape[2], width, n_bands),
-                       design_hash=design_hash, captures=list(captures))
+                       design_hash=design_hash, captures=list(captures),
+                       tap_start=tap_start, tap_weights=tap_weights)
 
 
 def coded_columns(mask_images, offsets, view_width: int, level: float = 0.1) -> np.ndarray:
@@ -311,7 +382,8 @@ def save_calibration(path, cal: Calibration, *, protect=()) -> tuple[Path, Path]
     text = json.dumps(cal.metadata(), indent=2, sort_keys=True) + "\n"
     with atomic_path(npz, protect=protect) as tmp:
         with open(tmp, "wb") as fh:
-            np.savez(fh, **{name: getattr(cal, name) for name in ARRAY_FIELDS})
+            np.savez(fh, **{name: getattr(cal, name) for name in ARRAY_FIELDS
+                            + OPTIONAL_ARRAY_FIELDS if getattr(cal, name) is not None})
     write_text(side, text, protect=protect)
     return npz, side
 
@@ -344,7 +416,7 @@ def load_calibration(path) -> Calibration:
             missing = [n for n in ARRAY_FIELDS if n not in z.files]
             if missing:
                 raise InputError(f"{npz}: missing field {missing[0]!r}")
-            arrays = {n: z[n] for n in ARRAY_FIELDS}
+            arrays = {n: z[n] for n in ARRAY_FIELDS + OPTIONAL_ARRAY_FIELDS if n in z.files}
     except InputError:
         raise
     except (OSError, ValueError) as exc:

@@ -8,11 +8,13 @@ from recon.operators.calibrated import CalibratedCassi
 from recon.operators.cassi import CassiOperator, View, kaleidoscope_cassi, standard_cassi
 from recon.operators.dispersion import Dispersion
 from recon.operators.mask import MaskModulation
+from recon.operators.smeared import SmearedCassi, taps_from_positions
 from recon.operators.warp import Flip, HomographyWarp, Identity, Translate, Warp, WarpOperator
 
 __all__ = [
     "LinearOperator", "MatrixOperator", "dot_test",
     "View", "CassiOperator", "standard_cassi", "kaleidoscope_cassi", "CalibratedCassi",
+    "SmearedCassi", "taps_from_positions",
     "Dispersion", "MaskModulation",
     "Warp", "Identity", "Flip", "Translate", "HomographyWarp", "WarpOperator",
 ]

@@ -136,3 +136,42 @@ def test_bad_inputs(calibrated):
         measurements(frame[None], cal)
     with pytest.raises(InputError, match="Calibration"):
         operator_from_calibration({"view_ids": IDS})
+
+
+def test_model_selection_smeared_and_shifted():
+    import dataclasses
+
+    from recon.calibration.operator import operator_from_calibration
+    from recon.operators import CalibratedCassi, SmearedCassi
+
+    rng = np.random.default_rng(21)
+    k, n_bands, hv, wm = 2, 3, 12, 24
+    phi = np.array([[0.0, 2.2, 4.0]] * k)
+    pos = np.stack([phi - 0.6, phi + 0.6], axis=2).clip(0, 4.0)
+    cal = build_calibration(
+        view_ids=(0, 1), view_boxes=[(0, 30, hv, wm), (0, 0, hv, wm)],
+        box_homographies=np.stack([np.eye(3), np.array([[-1, 0, wm - 1.0], [0, 1, 0],
+                                                        [0, 0, 1]])]),
+        mask_images=rng.random((k, n_bands, hv, wm)), wavelengths=[450.0, 550.0, 650.0],
+        dispersion=phi, checker_dispersion=phi[:, 1], band_positions=pos, grid="centre")
+    shifted = operator_from_calibration(cal)                    # no view masks yet: "auto"
+    assert isinstance(shifted, CalibratedCassi)
+    with pytest.raises(InputError, match="recalibrate"):
+        operator_from_calibration(cal, model="smeared")
+    with pytest.raises(InputError):
+        operator_from_calibration(cal, model="exact")
+    hv_, wv = cal.view_shape
+    full = dataclasses.replace(cal, view_masks=rng.random((k, hv_, wv)))
+    op = operator_from_calibration(full, (1, 0))
+    assert isinstance(op, SmearedCassi) and op.oshape == (2, hv, wm)
+    assert op.ishape == (n_bands,) + tuple(cal.cube_shape[:2])
+    assert dot_test(op, rng) < 1e-6
+    assert isinstance(operator_from_calibration(full, model="shifted"), CalibratedCassi)
+    # band_scale multiplies each band of either model.
+    scale = np.array([0.5, 2.0, 1.5])
+    x = rng.random(op.ishape)
+    for model in ("smeared", "shifted"):
+        a = operator_from_calibration(full, model=model)
+        b = operator_from_calibration(full, model=model, band_scale=scale)
+        np.testing.assert_allclose(b.forward(x), a.forward(x * scale[:, None, None]),
+                                   rtol=1e-5, atol=1e-6)

@@ -165,3 +165,73 @@ def test_union_width_covers_a_mirrored_views_coded_columns():
     # The mirror's coded columns 0..23 are centre columns 29..6: the grid must reach 29.
     assert width == 30
     assert union_width(masks, offsets, np.stack([np.eye(3), np.eye(3)]), wv) == wv
+
+
+def _cal_smear(rng):
+    k, n_bands, hv, wm = 3, 4, 20, 30
+    phi = np.array([[-3.0, -1.0, 0.0, 2.5]] * k) + rng.uniform(-0.2, 0.2, (k, 1))
+    hb = np.stack([np.eye(3)] + [np.array([[-1, 0, wm - 1.0], [0, 1, 0.5], [0, 0, 1]])] * 2)
+    # Positions across each band: from half-way to the previous band centre to half-way to the
+    # next (the outer bands stop at their centre, like a filter that ends there).
+    edges = np.concatenate([phi[:, :1], 0.5 * (phi[:, 1:] + phi[:, :-1]), phi[:, -1:]], axis=1)
+    pos = edges[:, :-1, None] + (edges[:, 1:] - edges[:, :-1])[:, :, None] * \
+        ((np.arange(16) + 0.5) / 16)[None, None, :]
+    return build_calibration(
+        view_ids=(0, 1, 2), view_boxes=[(0, 40, hv, wm), (0, 0, hv, wm), (0, 80, hv, wm)],
+        box_homographies=hb, mask_images=rng.random((k, n_bands, hv, wm)),
+        wavelengths=[450.0, 500.0, 550.0, 600.0], dispersion=phi, checker_dispersion=phi[:, 2],
+        design_hash="0123abcd4567ef89", band_positions=pos)
+
+
+def test_smeared_fields_built_saved_and_optional(tmp_path):
+    import dataclasses
+
+    rng = np.random.default_rng(11)
+    cal = _cal_smear(rng)
+    assert cal.tap_start.shape == (3, 4) and cal.tap_weights.shape[:2] == (3, 4)
+    np.testing.assert_allclose(cal.tap_weights.sum(axis=2), 1.0)
+    # The kernels sit where the offsets say: their centroid lies between neighbouring centres.
+    cen = cal.tap_start + (cal.tap_weights * np.arange(cal.tap_weights.shape[2])).sum(axis=2)
+    assert np.all(np.diff(cen, axis=1) > 0)
+    assert not cal.has_smeared                          # view masks not recovered yet
+    hv, wv = cal.view_shape
+    full = dataclasses.replace(cal, view_masks=rng.random((3, hv, wv)),
+                               smear_gains=np.full(4, 2.0))
+    assert full.has_smeared
+    save_calibration(tmp_path / "cal", full)
+    back = load_calibration(tmp_path / "cal")
+    for name in ("tap_start", "tap_weights", "view_masks", "smear_gains"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(full, name))
+    # A file without them (older code) still loads, as the shifted model only.
+    save_calibration(tmp_path / "old", _cal(rng))
+    old = load_calibration(tmp_path / "old")
+    assert old.tap_start is None and old.view_masks is None and not old.has_smeared
+    bad = [dict(view_masks=rng.random((3, hv, wv + 1))),
+           dict(tap_start=None),
+           dict(tap_weights=-cal.tap_weights),
+           dict(tap_start=cal.tap_start + 30),
+           dict(smear_gains=np.ones(3))]
+    for kw in bad:
+        with pytest.raises(InputError):
+            dataclasses.replace(full, **kw)
+
+
+def test_band_positions_sample_each_band_evenly():
+    from recon.calibration.dispersion import band_positions, fit_dispersion
+
+    lam = np.array([450.0, 500.0, 550.0, 600.0, 650.0])
+    u = 1.0 / (lam * 1e-3) ** 2
+    cen = np.stack([10.0 - 8.0 * (u - u[2]), 30.0 - 7.0 * (u - u[2])])     # (K=2, L) exact
+    fit = fit_dispersion(lam, cen, ref_nm=550.0, degree=1)
+    iv = np.stack([lam - 10.0, lam + 10.0], axis=1)
+    pos = band_positions(fit, iv, samples=4)
+    assert pos.shape == (2, 5, 4)
+    np.testing.assert_allclose(pos[:, :, 0], fit.positions(lam - 7.5))
+    np.testing.assert_allclose(pos[:, :, -1], fit.positions(lam + 7.5))
+    assert np.all(np.diff(pos, axis=2) > 0)                   # longer λ lands further right
+    np.testing.assert_allclose(band_positions(fit, np.stack([lam, lam], 1), 1)[..., 0], cen,
+                               atol=1e-9)
+    with pytest.raises(InputError):
+        band_positions(fit, iv[:, ::-1])
+    with pytest.raises(InputError):
+        band_positions(fit, iv, samples=0)
