@@ -173,7 +173,7 @@ def calibrate_from_captures(design, *, repeats: int = 4, progress: bool = False,
         # diag(HH^T)^-1 step amplifies without bound.  They are set to exactly zero.
         masks = np.where(masks >= MASK_FLOOR, masks, np.float32(0.0))
         _tick(bar)
-        hb = view_homographies(caps.checker, caps.checker_white, boxes, ids, caps.pattern_size)
+        hb = view_homographies(caps.checker, caps.checker_white, boxes, ids, tuple(caps.meta["checker"]["pattern_size"]))
         _tick(bar)
         # Provisional gains from the whites (radiance E = 1 per band): the mask images are the
         # white captures divided by their white level w_l (DN at an open pixel), taken with

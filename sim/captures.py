@@ -4,13 +4,16 @@ Each capture is a raw frame (DN, float32) plus a JSON-ready sidecar (the one
 :func:`sim.frame.simulate_frame` writes: ``design_hash``, ``monochromatic_nm``, ``exposure_ms``,
 ``radiance_scale``, ...) extended with ``target`` (what was in front of the instrument),
 ``repeats`` and, for the checkerboard and the ColorChecker, the target's geometry a lab knows
-from the target's datasheet (``pattern_size``; the patch reference radiances).
+from the target's datasheet (``pattern_size``, the inner corners, and ``squares``, sized to the
+views by :func:`checker_layout`; the patch reference radiances).  The reconstruction side reads
+the board's pattern size from that sidecar, never from the design.
 
 =================  ======================================================================
 ``white``          uniform white through every band's band-pass (L frames): the band's
                    whole wavelength interval, as a scene frame integrates it
 ``line``           a 1-px bright vertical line, monochromatic at every band centre (L frames)
-``checker``        a checkerboard at 550 nm (``CHECKER_NM``), with a quiet white margin
+``checker``        a checkerboard at 550 nm (``CHECKER_NM``), with a quiet white margin, its
+                   squares sized to the view (:func:`checker_layout`)
 ``checker_white``  the uniform white at 550 nm (the checkerboard's flat field)
 ``colorchecker``   the 24-patch ColorChecker under D65, full spectrum (box band sampling, like
                    a scene frame), with the patches' reference radiances
@@ -28,26 +31,83 @@ the calibration divides out so that all captures and scene frames share one radi
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from recon.errors import InputError
 
-__all__ = ["CHECKER_NM", "Captures", "checker_target", "render_captures", "capture"]
+__all__ = ["CHECKER_NM", "Captures", "checker_layout", "checker_target", "render_captures", "capture"]
 
 #: Wavelength of the geometric (checkerboard) capture, nm.
 CHECKER_NM = 550.0
 
 
+#: Fewest mask cells along a checkerboard square's side: the calibration unmasks the board by
+#: dividing by the white and filling the chrome cells by normalised convolution, so a corner is
+#: located only if each square shows several open cells along its edges.
+CHECKER_MIN_CELLS = 5
+#: Most squares along a side (7 × 7 inner corners, the board of views of ≥ 120 px).
+CHECKER_MAX_SQUARES = 8
+
+
+def checker_layout(design) -> dict:
+    r"""The checkerboard's geometry on the centre view's :math:`v \times v` grid.
+
+    Square side :math:`s = \max(\lfloor v/12 \rfloor, \lceil 5\,c \rceil)` with :math:`c` the
+    mask cell in pixels (``CHECKER_MIN_CELLS`` cells per side); a white quiet zone of
+    :math:`q = \max(2, \lfloor s/2 \rfloor)` px (OpenCV finds a board only when it does not
+    touch the image edge).  The board is centred on the grid and must lie, with its quiet zone,
+    inside the columns *every* view codes: the centre codes :math:`[0, v - g)`, a mirrored view
+    :math:`[g, v)` (:math:`g` the guard stripe), hence
+
+    .. math:: n_x = \min(8, \lfloor (v - 2g - 2q)/s \rfloor), \qquad
+              n_y = \min(8, \lfloor (v - 2q)/s \rfloor)
+
+    squares along x and y (at least 4 each: OpenCV needs more than 2 inner corners per side;
+    if :math:`n_x < 4`, because a wide guard stripe leaves few columns that every view codes,
+    the squares shrink to the smallest side, :math:`\lceil 5c \rceil`).
+    Views of ≥ 120 px get the 8 × 8-square board of side :math:`\lfloor v/12 \rfloor`; smaller
+    views fewer, larger squares.
+
+    Returns
+    -------
+    dict
+        ``square_px``, ``squares`` (n_x, n_y), ``pattern_size`` (n_x − 1, n_y − 1) inner
+        corners (OpenCV's ``patternSize``: per row, per column), ``origin_px`` (y0, x0) of the
+        board on the grid.
+
+    Raises
+    ------
+    InputError
+        Views too small for a board of 4 × 4 squares.
+    """
+    v = int(design.view_size_px)
+    g = int(design.guard_px)
+    smin = max(int(math.ceil(CHECKER_MIN_CELLS * float(design.mask_cell_px) - 1e-9)), 4)
+    # The preferred square; the smallest one when a wide guard stripe leaves too few columns.
+    for s in (max(v // 12, smin), smin):
+        q = max(2, s // 2)
+        nx = min(CHECKER_MAX_SQUARES, (v - 2 * g - 2 * q) // s)
+        ny = min(CHECKER_MAX_SQUARES, (v - 2 * q) // s)
+        if nx >= 4 and ny >= 4:
+            break
+    else:
+        raise InputError(f"views of {v} px with a {g} px guard stripe are too small for a "
+                         f"checkerboard calibration: the {v - 2 * g} px of columns that every "
+                         f"view codes and the {v} px of rows hold {max(nx, 0)}x{max(ny, 0)} "
+                         f"squares of {s} px (>= {CHECKER_MIN_CELLS} mask cells), need 4x4")
+    return {"square_px": int(s), "squares": (int(nx), int(ny)),
+            "pattern_size": (int(nx) - 1, int(ny) - 1),
+            "origin_px": (int((v - ny * s) // 2), int((v - nx * s) // 2))}
+
+
 def checker_target(design, wavelengths=None):
     r"""The checkerboard cube on the centre view's grid and its inner-corner count.
 
-    :math:`(c+1) \times (r+1)` squares of side :math:`s = \lfloor v / 12 \rfloor` centred on the
-    :math:`v \times v` grid, surrounded by a white quiet zone (OpenCV finds a board only when it
-    does not touch the image edge), white 0.9, black 0.05.  The board is 7 × 7 inner corners; it
-    spans 8 squares, i.e. :math:`8 s \approx 2v/3`, so every view's code region (the view minus
-    the guard stripe) holds it whole.
+    The board of :func:`checker_layout` (its squares sized to the view and the mask cell),
+    surrounded by a white quiet zone, white 0.9, black 0.05; square (0, 0) is white.
 
     Returns
     -------
@@ -59,18 +119,16 @@ def checker_target(design, wavelengths=None):
 
     wl = design.wavelengths if wavelengths is None else np.asarray(wavelengths, np.float64)
     v = design.view_size_px
-    s = v // 12
-    if s < 4:
-        raise InputError(f"views of {v} px are too small for a checkerboard calibration")
-    n = 8
-    y0 = (v - n * s) // 2
-    x0 = (v - n * s) // 2
+    lay = checker_layout(design)
+    s = lay["square_px"]
+    nx, ny = lay["squares"]
+    y0, x0 = lay["origin_px"]
     refl = np.full((v, v), 0.9, dtype=np.float32)
-    yy, xx = np.mgrid[0:n * s, 0:n * s]
+    yy, xx = np.mgrid[0:ny * s, 0:nx * s]
     board = ((yy // s + xx // s) % 2 == 0)
-    refl[y0:y0 + n * s, x0:x0 + n * s] = np.where(board, 0.9, 0.05)
+    refl[y0:y0 + ny * s, x0:x0 + nx * s] = np.where(board, 0.9, 0.05)
     cube = refl[:, :, None] * illuminant("E", wl).astype(np.float32)[None, None, :]
-    return np.ascontiguousarray(cube, dtype=np.float32), (n - 1, n - 1)
+    return np.ascontiguousarray(cube, dtype=np.float32), lay["pattern_size"]
 
 
 @dataclass
@@ -179,7 +237,10 @@ def render_captures(design, *, repeats: int = 4, seed: int = 1000, progress: boo
             elif name == "checker":
                 f, m = capture(design, checker_cube, wl, wavelength_nm=CHECKER_NM,
                                repeats=repeats, seed=s, target="checkerboard")
+                # What a lab knows from its target's datasheet: the board's layout.
+                lay = checker_layout(design)
                 m["pattern_size"] = list(pattern)
+                m["squares"] = list(lay["squares"])
                 out["checker"], meta["checker"] = f, m
             elif name == "checker_white":
                 f, m = capture(design, white_cube, wl, wavelength_nm=CHECKER_NM,

@@ -94,19 +94,26 @@ def _to_u8(img: np.ndarray) -> np.ndarray:
     return np.clip((img - lo) * (255.0 / (hi - lo)), 0, 255).astype(np.uint8)
 
 
-def find_corners(img: np.ndarray, pattern_size, flips=(), win: int = 5) -> np.ndarray:
+def find_corners(img: np.ndarray, pattern_size, flips=(), win: int | None = None) -> np.ndarray:
     """Checkerboard inner corners of an (unmasked) view image, in its own pixel coordinates.
+
+    Detection tries, in turn, ``cv2.findChessboardCorners`` (adaptive threshold) and
+    ``cv2.findChessboardCornersSB`` on the view, then both on the view upsampled 2× (bicubic):
+    small squares (≈ 10 px, 5 mask cells, whose hole-filled edges are ragged) are found by the
+    sector-based detector or after upsampling where the classic one fails.
 
     Parameters
     ----------
     img : (h, w) array
     pattern_size : (cols, rows)
-        Inner corners per row and per column (OpenCV's ``patternSize``).
+        Inner corners per row and per column (OpenCV's ``patternSize``), from the
+        checkerboard capture's sidecar (the target's datasheet).
     flips : tuple of int
         Axes to reverse before detection (the view's mirror flips), so that the order of the
         corners matches the centre view's.
-    win : int
-        Half-size of the ``cornerSubPix`` search window.
+    win : int, optional
+        Half-size of the ``cornerSubPix`` search window; default about a third of the corner
+        spacing, at most 5 (a window reaching the next corner biases the refinement).
 
     Returns
     -------
@@ -121,14 +128,25 @@ def find_corners(img: np.ndarray, pattern_size, flips=(), win: int = 5) -> np.nd
     h, w = img.shape
     u8 = _to_u8(_flip(np.asarray(img, dtype=np.float32), flips))
     size = (int(pattern_size[0]), int(pattern_size[1]))
-    flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
-    ok, corners = cv2.findChessboardCorners(u8, size, flags=flags)
-    if not ok:
-        ok, corners = cv2.findChessboardCornersSB(u8, size)
-    if not ok or corners is None:
-        raise InputError(f"checkerboard with {size[0]}x{size[1]} inner corners not found")
-    corners = np.ascontiguousarray(np.asarray(corners, dtype=np.float32).reshape(-1, 1, 2))
-    corners = cv2.cornerSubPix(u8, corners, (win, win), (-1, -1), _SUBPIX_CRITERIA)
+    if min(size) < 3:
+        raise InputError(f"pattern_size {size}: OpenCV needs more than 2 inner corners per side")
+    corners = _detect(u8, size)
+    if corners is None:
+        big = cv2.resize(u8, None, fx=2, fy=2, interpolation=cv2.INTER_CUBIC)
+        corners = _detect(big, size)
+        if corners is not None:
+            # Pixel centres: x_big = 2 x + 0.5.
+            corners = (corners - 0.5) / 2.0
+    if corners is None:
+        raise InputError(f"checkerboard with {size[0]}x{size[1]} inner corners not found "
+                         f"in a {h}x{w} px view")
+    corners = np.ascontiguousarray(corners.reshape(-1, 1, 2).astype(np.float32))
+    grid = corners.reshape(size[1], size[0], 2).astype(np.float64)
+    spacing = float(np.median(np.concatenate([
+        np.linalg.norm(np.diff(grid, axis=1), axis=2).ravel(),
+        np.linalg.norm(np.diff(grid, axis=0), axis=2).ravel()])))
+    half = int(win) if win is not None else int(np.clip(round(spacing / 3.0), 2, 5))
+    corners = cv2.cornerSubPix(u8, corners, (half, half), (-1, -1), _SUBPIX_CRITERIA)
     # OpenCV 5 returns (N, 2), 4.x (N, 1, 2).
     pts = np.asarray(corners, dtype=np.float64).reshape(size[1], size[0], 2)
     # OpenCV may start from any end of the board: make it row-major from the top-left.
@@ -142,6 +160,17 @@ def find_corners(img: np.ndarray, pattern_size, flips=(), win: int = 5) -> np.nd
     if 0 in flips:
         pts[:, 1] = (h - 1) - pts[:, 1]
     return pts
+
+
+def _detect(u8: np.ndarray, size) -> np.ndarray | None:
+    """(N, 2) float64 corners from the classic detector, else the sector-based one, or None."""
+    flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+    ok, corners = cv2.findChessboardCorners(u8, size, flags=flags)
+    if not ok or corners is None:
+        ok, corners = cv2.findChessboardCornersSB(u8, size)
+    if not ok or corners is None:
+        return None
+    return np.asarray(corners, dtype=np.float64).reshape(-1, 2)
 
 
 def view_homographies(checker, white, view_boxes, view_ids, pattern_size,

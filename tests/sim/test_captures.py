@@ -5,7 +5,8 @@ import os
 import numpy as np
 import pytest
 
-from sim.captures import CHECKER_NM, capture, checker_target, render_captures
+from recon.errors import InputError
+from sim.captures import CHECKER_NM, capture, checker_layout, checker_target, render_captures
 from sim.design import get_design
 
 OVR = {"band_step_nm": 50.0}
@@ -22,19 +23,54 @@ def cache(tmp_path_factory):
         os.environ["KALEIDOSPEC_CACHE"] = old
 
 
-def test_checker_target_fits_every_code_region():
-    d = get_design("small", OVR)
-    cube, (cols, rows) = checker_target(d)
-    v = d.view_size_px
-    assert cube.shape == (v, v, d.n_bands) and cube.dtype == np.float32
+def _board_extent(cube):
     dark = cube[:, :, 0] < 0.5
     ys, xs = np.nonzero(dark)
+    return ys.min(), ys.max(), xs.min(), xs.max()
+
+
+@pytest.mark.parametrize("over", [
+    {},                                                              # 158 px views, 20 px guard
+    {"sensor_width_px": 300, "sensor_height_px": 240, "sensor_pixel_um": 40.0,
+     "mask_pitch_um": 80.0},                                         # 78 px views
+    {"kaleidoscope": False, "views": (0,)},                          # one 478 px view
+    {"prism_apex_deg": 60.0},                                        # 48 px guard stripe
+], ids=["small", "78px", "full-frame", "apex60"])
+def test_checker_target_fits_every_code_region(over):
+    d = get_design("small", {**OVR, **over})
+    lay = checker_layout(d)
+    cube, (cols, rows) = checker_target(d)
+    v, g, s = d.view_size_px, d.guard_px, lay["square_px"]
+    assert cube.shape == (v, v, d.n_bands) and cube.dtype == np.float32
+    y0, y1, x0, x1 = _board_extent(cube)
     # The board (with its dark squares) leaves a white quiet zone on every side, inside the
     # columns every view codes (the centre codes [0, v - guard), a mirrored view [guard, v)).
-    g = d.guard_px
-    assert ys.min() > 0 and ys.max() < v - 1
-    assert xs.min() >= g and xs.max() < v - g
-    assert (cols, rows) == (7, 7)
+    assert y0 > 0 and y1 < v - 1
+    assert x0 >= g + 2 and x1 < v - g - 2
+    # Squares of at least 5 mask cells, and enough of them for OpenCV (> 2 inner corners).
+    assert s >= 5 * d.mask_cell_px - 1e-9
+    assert (cols, rows) == (lay["squares"][0] - 1, lay["squares"][1] - 1)
+    assert 3 <= cols <= 7 and 3 <= rows <= 7
+    assert x1 - x0 + 1 <= (cols + 1) * s and y1 - y0 + 1 <= (rows + 1) * s
+
+
+def test_checker_layout_keeps_the_small_board_and_scales_down():
+    assert checker_layout(get_design("small", OVR))["pattern_size"] == (7, 7)
+    sizes = [checker_layout(get_design("small", {**OVR, "sensor_width_px": w,
+                                                 "sensor_height_px": h, "sensor_pixel_um": p,
+                                                 "mask_pitch_um": 2 * p}))
+             for w, h, p in ((600, 480, 20.0), (376, 300, 32.0), (300, 240, 40.0))]
+    # Smaller views: squares shrink with the view down to 5 mask cells (10 px), then fewer.
+    sq = [z["square_px"] for z in sizes]
+    assert sq == sorted(sq, reverse=True) and min(sq) == 10
+    n = [z["squares"][0] * z["squares"][1] for z in sizes]
+    assert n == sorted(n, reverse=True) and n[0] > n[-1]
+
+
+def test_checker_layout_rejects_a_guard_too_wide():
+    # At 70° the guard stripe (74 px) leaves 10 px that every view codes.
+    with pytest.raises(InputError, match="guard stripe"):
+        checker_layout(get_design("small", {**OVR, "prism_apex_deg": 70.0}))
 
 
 def test_repeats_average_the_noise():
@@ -66,7 +102,8 @@ def test_render_captures_is_complete_and_tagged():
     assert len(caps.meta["white"]) == len(caps.meta["line"]) == L
     assert all(m["design_hash"] == d.hash for m in caps.meta["line"])
     assert [m["monochromatic_nm"] for m in caps.meta["line"]] == list(d.wavelengths)
-    assert caps.meta["checker"]["pattern_size"] == [7, 7]
+    assert caps.meta["checker"]["pattern_size"] == [7, 7] == list(caps.pattern_size)
+    assert caps.meta["checker"]["squares"] == [8, 8]
     # Band-pass whites: each lights its own band only, and every band lights the views.
     assert all(m["band_nm"] == w for m, w in zip(caps.meta["white"], d.wavelengths))
     assert np.all(caps.white.max(axis=(1, 2)) > 0.5 * d.max_dn)

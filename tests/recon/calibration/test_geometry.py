@@ -184,3 +184,41 @@ def test_bad_inputs(scene):
         view_homographies(checker, white, boxes, IDS, PATTERN, refine="lucas")
     with pytest.raises(InputError, match="dark"):
         unmask(np.ones((5, 5)), np.zeros((5, 5)))
+
+
+def test_small_view_board_of_ten_pixel_squares_is_found():
+    # A 78 px view (the reduced designs): 4×6 squares of 10 px = 5 mask cells, under a 2×2-px
+    # random mask; the classic detector alone misses it.
+    from recon.calibration.geometry import board_homography, find_corners
+
+    rng = np.random.default_rng(3)
+    h, w, s, (nx, ny), (ox, oy) = 78, 79, 10.0, (4, 6), (19.3, 9.6)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    acc = np.zeros((h, w))
+    off = (np.arange(4) + 0.5) / 4 - 0.5
+    for dy in off:
+        for dx in off:
+            u, v = (xx + dx - ox) / s, (yy + dy - oy) / s
+            inside = (u >= 0) & (u < nx) & (v >= 0) & (v < ny)
+            acc += np.where(inside & ((np.floor(u) + np.floor(v)) % 2 == 1), 0.05, 0.9)
+    board = acc / 16
+    cells = rng.random((h // 2 + 1, w // 2 + 1)) < 0.5
+    mask = np.kron(cells, np.ones((2, 2)))[:h, :w]
+    white = 1000.0 * mask + 3.0 * rng.standard_normal((h, w))
+    checker = 1000.0 * mask * board + 3.0 * rng.standard_normal((h, w))
+    img, valid = unmask(checker, white, return_valid=True)
+    pattern = (nx - 1, ny - 1)
+    for flips in ((), (1,)):
+        im = img[:, ::-1] if flips else img
+        vd = valid[:, ::-1] if flips else valid
+        cor = find_corners(np.ascontiguousarray(im), pattern, flips)
+        b = board_homography(im, vd, cor, pattern, square_px=13)
+        gx, gy = np.meshgrid(np.arange(1, nx) * 13.0, np.arange(1, ny) * 13.0)
+        got = apply_homography(b, np.stack([gx.ravel(), gy.ravel()], axis=1))
+        tx, ty = np.meshgrid(ox + s * np.arange(1, nx), oy + s * np.arange(1, ny))
+        truth = np.stack([tx.ravel(), ty.ravel()], axis=1)
+        if flips:
+            truth[:, 0] = (w - 1) - truth[:, 0]
+        # find_corners returns the corners of the unflipped board in this image's coordinates.
+        err = np.abs(np.sort(got, axis=0) - np.sort(truth, axis=0)).max()
+        assert err < 0.3, (flips, err)

@@ -40,7 +40,8 @@ def test_boxes_exact_for_touching_views_and_subset_order():
     rng = np.random.default_rng(1)
     img, truth = _sensor(rng, 60, 84, gap_y=0, gap_x=0)
     ids = (4, 0, 2)
-    np.testing.assert_array_equal(find_view_boxes(img, ids), truth[list(ids)])
+    # Nine views touching in both directions look like one view: the grid must be given.
+    np.testing.assert_array_equal(find_view_boxes(img, ids, grid=3), truth[list(ids)])
 
 
 def test_union_of_monochromatic_stack_gives_dispersed_width():
@@ -127,3 +128,82 @@ def test_margin_x_grows_boxes_only_as_far_as_they_stay_apart():
     # A 9-px gap leaves room for 4 px per side at most; asking for more never overlaps.
     wide = find_view_boxes(img, ids, margin_x=100)
     assert np.all(wide[:, 3] <= 90 + 2 * 4) and np.all(wide[:, 3] >= 94)
+
+
+def _plus_stack(rng, hv=60, wc=50, span=36, gap_x=4, gap_y=2, x0=8, y0=3, shape=None,
+                shifts=(0, 6, 12, 18, 24, 30, 36)):
+    """Monochromatic whites of the five views 0..4 (a plus), wide dispersion: each band shows
+    the code region (width ``wc``) shifted by up to ``span``. Returns the stack and the boxes
+    (union of the bands) of ids 0..4."""
+    wm = wc + span
+    hs = shape[0] if shape else y0 + 3 * hv + 2 * gap_y + 3
+    ws = shape[1] if shape else x0 + 3 * wm + 2 * gap_x + 8
+    code = {v: _mask(rng, hv, wc) for v in range(5)}
+    boxes = np.empty((5, 4), dtype=int)
+    stack = []
+    for s in shifts:
+        img = np.zeros((hs, ws))
+        for v in range(5):
+            r, c = VIEW_GRID[v]
+            by, bx = y0 + r * (hv + gap_y), x0 + c * (wm + gap_x)
+            boxes[v] = (by, bx, hv, wm)
+            # The shortest band is brightest: the dispersed edges are lit by one band each.
+            img[by:by + hv, bx + s:bx + s + wc] = (800.0 - 10.0 * s) * code[v]
+        stack.append(img)
+    return np.stack(stack).astype(np.float32), boxes
+
+
+def _disjoint(boxes):
+    for i in range(len(boxes)):
+        for j in range(i + 1, len(boxes)):
+            a, b = boxes[i], boxes[j]
+            if (a[0] < b[0] + b[2] and b[0] < a[0] + a[2]
+                    and a[1] < b[1] + b[3] and b[1] < a[1] + a[3]):
+                return False
+    return True
+
+
+def test_wide_dispersion_plus_layout_follows_each_view():
+    # Only the middle row and column are lit, the dispersion span (36 px) is 9× the column
+    # gap: the columns' global profiles are uneven, the boxes must still hold every view.
+    rng = np.random.default_rng(6)
+    stack, truth = _plus_stack(rng)
+    boxes = find_view_boxes(stack, (0, 1, 2, 3, 4), margin_x=2)
+    assert _disjoint(boxes)
+    assert np.all(boxes[:, 2:] == boxes[0, 2:])
+    for b, t in zip(boxes, truth):
+        assert b[0] <= t[0] and b[0] + b[2] >= t[0] + t[2]
+        assert b[1] <= t[1] and b[1] + b[3] >= t[1] + t[3]
+        assert b[3] - t[3] <= 4 and b[2] == t[2]
+
+
+def test_view_at_the_sensor_edge_is_clipped_and_a_cut_view_is_named():
+    rng = np.random.default_rng(7)
+    # View 1 starts at column 0: its box may not grow to the left, it is shifted instead.
+    stack, truth = _plus_stack(rng, x0=0)
+    boxes = find_view_boxes(stack, (0, 1, 2), margin_x=3)
+    assert boxes[1, 1] == 0 and _disjoint(boxes)
+    assert boxes[1, 1] + boxes[1, 3] >= truth[1, 1] + truth[1, 3]
+    # A view cut by the sensor's left edge cannot be used: named in the error.
+    cut = stack[:, :, 30:]
+    with pytest.raises(InputError, match="view 1.*left edge"):
+        find_view_boxes(cut, (0, 1, 2))
+    # ... but the views that are whole still can.
+    whole = find_view_boxes(cut, (0, 2, 3))
+    assert _disjoint(whole) and np.all(whole[:, 3] >= truth[0, 3])
+
+
+def test_single_full_frame_view_and_a_partial_row():
+    rng = np.random.default_rng(8)
+    # The traditional CASSI: one view fills most of the sensor.
+    one = np.zeros((120, 150), dtype=np.float32)
+    one[2:118, 10:140] = 900.0 * _mask(rng, 116, 130)
+    np.testing.assert_array_equal(find_view_boxes(one, (0,)), [[2, 10, 116, 130]])
+    with pytest.raises(InputError, match="view 1 is dark"):
+        find_view_boxes(one, (0, 1))
+    # Only the middle row of a kaleidoscope lit: three columns, one row (not three touching).
+    stack, truth = _plus_stack(rng)
+    row = stack.copy()
+    row[:, :truth[0, 0] - 1] = 0.0
+    row[:, truth[0, 0] + truth[0, 2] + 1:] = 0.0
+    np.testing.assert_array_equal(find_view_boxes(row, (1, 0, 2)), truth[[1, 0, 2]])

@@ -1,0 +1,87 @@
+"""Calibration from rendered captures on the designs that used to break it: small views (78 px),
+the traditional full-frame CASSI (``kaleidoscope=False``, one view) and a wide dispersion
+(prism apex 50°, twice the span).  Reduced sensors and 6 bands keep each under a few seconds."""
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.mitsuba
+
+#: ``small`` on a 300×240 sensor of 40 µm pixels (2×2-pixel mask cells): 78 px views.
+REDUCED = {"sensor_width_px": 300, "sensor_height_px": 240, "sensor_pixel_um": 40.0,
+           "mask_pitch_um": 80.0, "band_step_nm": 50.0}
+
+
+@pytest.fixture(scope="module", autouse=True)
+def cache(tmp_path_factory):
+    pytest.importorskip("mitsuba")
+    from sim.variant import ensure_variant
+
+    try:
+        ensure_variant()
+    except Exception as err:  # no usable LLVM for drjit on this machine
+        pytest.skip(f"Mitsuba's spectral variant is not usable here: {err}")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("KALEIDOSPEC_CACHE", str(tmp_path_factory.mktemp("kaleidospec-cache")))
+        yield
+
+
+def _disjoint(boxes):
+    for i in range(len(boxes)):
+        for j in range(i + 1, len(boxes)):
+            a, b = boxes[i], boxes[j]
+            if (a[0] < b[0] + b[2] and b[0] < a[0] + a[2]
+                    and a[1] < b[1] + b[3] and b[1] < a[1] + a[3]):
+                return False
+    return True
+
+
+def _check(design):
+    from kaleidospec import pipeline
+
+    cal = pipeline.calibrate(design, progress=False, repeats=2)
+    ids = tuple(sorted(design.views))
+    assert tuple(cal.view_ids) == ids
+    boxes = np.asarray(cal.view_boxes)
+    hs, ws = design.sensor_height_px, design.sensor_width_px
+    assert _disjoint(boxes)
+    assert np.all(boxes[:, :2] >= 0)
+    assert np.all(boxes[:, 0] + boxes[:, 2] <= hs) and np.all(boxes[:, 1] + boxes[:, 3] <= ws)
+    # Each box holds its view's light: the design's bound at the pass band's edges, up to
+    # 3 px (the outermost rows and columns get a fraction of a pixel or of a band's light,
+    # and a touching neighbour shares a rim), and no more than a few pixels beyond it.
+    for b, v in zip(boxes, ids):
+        r0, c0, r1, c1 = design.light_extent_px(v)
+        assert r0 - 4 <= b[0] <= r0 + 3 and r1 - 3 <= b[0] + b[2] <= r1 + 4, (v, b, r0, r1)
+        assert c0 - 4 <= b[1] <= c0 + 3 and c1 - 3 <= b[1] + b[3] <= c1 + 4, (v, b, c0, c1)
+    assert np.all(np.isfinite(cal.gains)) and np.all(cal.gains > 0)
+    return cal, boxes
+
+
+def test_small_views():
+    from sim.design import get_design
+
+    d = get_design("small", REDUCED)
+    assert d.view_size_px == 78
+    _check(d)
+
+
+def test_traditional_full_frame_cassi():
+    from sim.design import get_design
+
+    d = get_design("small", {**REDUCED, "kaleidoscope": False, "views": (0,)})
+    cal, boxes = _check(d)
+    assert boxes.shape == (1, 4)
+    # One view: its box is the single lit region, about the whole view (no 3×3 split).
+    assert boxes[0, 2] >= d.view_size_px - 2
+
+
+def test_wide_dispersion():
+    from sim.design import get_design
+
+    # 98 px views: at 50° the guard stripe (22 px) still leaves room for a 4-square board.
+    base = {**REDUCED, "sensor_width_px": 376, "sensor_height_px": 300, "sensor_pixel_um": 32.0,
+            "mask_pitch_um": 64.0}
+    d = get_design("small", {**base, "prism_apex_deg": 50.0})
+    assert d.dispersion_span_px > 1.9 * get_design("small", base).dispersion_span_px
+    _check(d)
