@@ -55,8 +55,6 @@ MASK_FLOOR = 0.05
 #: Columns added (at most: never so many that boxes overlap) on each side of a view's lit extent:
 #: a view's outermost columns are lit by one band only and fall under the box threshold.
 BOX_MARGIN_X = 2
-#: Keep only the measurement pixels the model covers wholly (:class:`RowSelected`).
-SELECT_ROWS = False
 #: Views used to reconstruct the ColorChecker for the radiometric gains.
 _RADIOMETRY_VIEWS = 5
 #: The calibrated forward model :func:`calibrated_operator` uses by default: ``"smeared"``
@@ -173,7 +171,9 @@ def calibrate_from_captures(design, *, repeats: int = 4, progress: bool = False,
         # diag(HH^T)^-1 step amplifies without bound.  They are set to exactly zero.
         masks = np.where(masks >= MASK_FLOOR, masks, np.float32(0.0))
         _tick(bar)
-        hb = view_homographies(caps.checker, caps.checker_white, boxes, ids, tuple(caps.meta["checker"]["pattern_size"]))
+        # The board's layout is what a lab knows from its target: read it from the sidecar.
+        pattern = tuple(caps.meta["checker"]["pattern_size"])
+        hb = view_homographies(caps.checker, caps.checker_white, boxes, ids, pattern)
         _tick(bar)
         # Provisional gains from the whites (radiance E = 1 per band): the mask images are the
         # white captures divided by their white level w_l (DN at an open pixel), taken with
@@ -382,101 +382,21 @@ def _check_views(n_views) -> tuple[int, ...]:
     return VIEW_ORDER[:n]
 
 
-class RowSelected:
-    r"""An operator whose :math:`\mathrm{diag}(HH^\top)` is zero on rows it cannot model.
+def normalised(op, g):
+    r"""``(s·H, s·g)`` with the measured rows' mean squared norm made 1.
 
-    A view's box on the sensor also holds light of scene parts outside the reconstruction grid
-    (the centre view's coded region): a mirrored view codes the columns that lie under the
-    centre's guard stripe, and its dispersed light of the grid's edge columns lands beyond the
-    view-image width of the calibrated model.  A measurement pixel where *some* bands come from
-    outside the grid is only partly modelled; GAP-TV's step
-    :math:`H^\top \Phi^{-1}(g - Hf)` would push that unmodelled light into the other bands
-    (measured: every extra mirrored view then *lowered* the PSNR).  A pixel is kept when the
-    model's response to a cube of ones reaches ``complete`` of the sum of its mask values over
-    the bands (every band that lights it comes from inside the grid) and its row norm is at
-    least ``floor`` × the median; otherwise :math:`\Phi_i = 0` and the solvers leave it out.
-    Forward and adjoint are unchanged.
-    """
-
-    def __new__(cls, op, full, complete: float = 0.98, floor: float = 0.05):
-        from recon.operators.base import LinearOperator
-
-        got = op.forward(np.ones(op.ishape, dtype=np.float32))
-        full = np.asarray(full, dtype=np.float32)
-        keep = (full > 0) & (got >= complete * full)
-        rn0 = np.asarray(op.row_norms_sq())
-        pos = rn0[rn0 > 0]
-        if pos.size:
-            keep &= rn0 >= floor * float(np.median(pos))
-
-        class _Op(LinearOperator):
-            def __init__(self):
-                super().__init__(op.ishape, op.oshape)
-                self.inner = op
-                self.kept = keep
-
-            def _forward(self, x):
-                return op.forward(x)
-
-            def _adjoint(self, y):
-                return op.adjoint(y)
-
-            def row_norms_sq(self):
-                return np.where(keep, rn0, 0).astype(rn0.dtype)
-
-            def __repr__(self):
-                return f"RowSelected({op!r}, {keep.mean():.0%} rows)"
-
-        return _Op()
-
-
-class Scaled:
-    r"""``s·H`` (forward, adjoint and row norms scaled), for a measurement scaled the same way.
-
-    :func:`normalised` picks :math:`s` so that the mean squared row norm of the measured rows
-    is 1: the data term :math:`\tfrac12\|s g - s H f\|^2` then weighs a measurement pixel
-    alike whatever the exposure units of :math:`H`, and one TV weight :math:`\tau` serves the
+    The data term :math:`\tfrac12\|s g - s H f\|^2` then weighs a measurement pixel alike
+    whatever the exposure units of :math:`H`, so one TV weight :math:`\tau` serves the
     calibrated and the exact operator, the ``small`` and the ``paper`` design.
     """
+    from recon.operators import ScaledOperator
 
-    def __new__(cls, op, s: float):
-        from recon.operators.base import LinearOperator
-
-        s = float(s)
-        f32 = np.float32(s)
-
-        class _Op(LinearOperator):
-            def __init__(self):
-                super().__init__(op.ishape, op.oshape)
-                self.inner = op
-                self.scale = s
-
-            def _forward(self, x):
-                y = op.forward(x)
-                return y * (f32 if y.dtype == np.float32 else s)
-
-            def _adjoint(self, y):
-                x = op.adjoint(y)
-                return x * (f32 if x.dtype == np.float32 else s)
-
-            def row_norms_sq(self):
-                rn = np.asarray(op.row_norms_sq())
-                return rn * rn.dtype.type(s * s)
-
-            def __repr__(self):
-                return f"Scaled({op!r}, {s:.4g})"
-
-        return _Op()
-
-
-def normalised(op, g):
-    """``(Scaled(op, s), s·g)`` with the measured rows' mean squared norm made 1."""
     rn = np.asarray(op.row_norms_sq(), dtype=np.float64)
     pos = rn[rn > 0]
     if pos.size == 0:
         return op, g
     s = 1.0 / math.sqrt(float(pos.mean()))
-    return Scaled(op, s), (g * np.float32(s)).astype(g.dtype, copy=False)
+    return ScaledOperator(op, s), (g * np.float32(s)).astype(g.dtype, copy=False)
 
 
 def calibrated_operator(cal, view_ids, model: str | None = None):
@@ -495,12 +415,7 @@ def calibrated_operator(cal, view_ids, model: str | None = None):
     gains = cal.smear_gains if kind == "smeared" and cal.smear_gains is not None else cal.gains
     if not np.all(gains > 0):
         raise InputError("the calibration's radiometric gains must be positive")
-    op = operator_from_calibration(cal, view_ids, model=kind, band_scale=1.0 / gains)
-    if SELECT_ROWS:
-        full = op.forward(np.ones(op.ishape, dtype=np.float32)) if kind == "smeared" else \
-            (op.mask_images.sum(axis=1))
-        return RowSelected(op, full)
-    return op
+    return operator_from_calibration(cal, view_ids, model=kind, band_scale=1.0 / gains)
 
 
 def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = DEFAULTS["solver"], iters: int = DEFAULTS["iters"],

@@ -3,7 +3,7 @@
 Working layout is band-major: cubes are (L, H, W), measurements (K, Hv, Wm), float32.
 """
 
-from recon.operators.base import LinearOperator, MatrixOperator, dot_test
+from recon.operators.base import LinearOperator, MatrixOperator, ScaledOperator, dot_test
 from recon.operators.calibrated import CalibratedCassi
 from recon.operators.cassi import CassiOperator, View, kaleidoscope_cassi, standard_cassi
 from recon.operators.dispersion import Dispersion
@@ -12,7 +12,7 @@ from recon.operators.smeared import SmearedCassi, taps_from_positions
 from recon.operators.warp import Flip, HomographyWarp, Identity, Translate, Warp, WarpOperator
 
 __all__ = [
-    "LinearOperator", "MatrixOperator", "dot_test",
+    "LinearOperator", "MatrixOperator", "ScaledOperator", "dot_test",
     "View", "CassiOperator", "standard_cassi", "kaleidoscope_cassi", "CalibratedCassi",
     "SmearedCassi", "taps_from_positions",
     "Dispersion", "MaskModulation",

@@ -109,6 +109,32 @@ class _Compose(LinearOperator):
         return self.b.adjoint(self.a.adjoint(y))
 
 
+class ScaledOperator(LinearOperator):
+    r"""``s·A`` for a scalar :math:`s`: forward and adjoint scaled by :math:`s`, row norms by
+    :math:`s^2`.  Used to bring a measurement and its operator to a common scale."""
+
+    def __init__(self, op: LinearOperator, s: float):
+        super().__init__(op.ishape, op.oshape)
+        self.inner = op
+        self.scale = float(s)
+
+    def _scaled(self, y: np.ndarray) -> np.ndarray:
+        return y * y.dtype.type(self.scale)
+
+    def _forward(self, x):
+        return self._scaled(self.inner.forward(x))
+
+    def _adjoint(self, y):
+        return self._scaled(self.inner.adjoint(y))
+
+    def row_norms_sq(self):
+        rn = np.asarray(self.inner.row_norms_sq())
+        return rn * rn.dtype.type(self.scale ** 2)
+
+    def __repr__(self) -> str:
+        return f"<ScaledOperator {self.scale:.4g} * {self.inner!r}>"
+
+
 class MatrixOperator(LinearOperator):
     """A dense matrix as an operator on flattened arrays (a reference for tests)."""
 
