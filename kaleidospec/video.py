@@ -180,8 +180,7 @@ class FrameRenderer:
 
     def electrons(self, cube) -> np.ndarray:
         """Mean photo-electrons (Hs, Ws) float32 for a radiance scale of 1."""
-        import cv2
-
+        from sim import sensor
         from sim.render import check_cube
 
         cube, _ = check_cube(self.design, cube, self.wavelengths)
@@ -192,9 +191,7 @@ class FrameRenderer:
         for l in range(irr.shape[0]):  # a loop over bands: one image in flight
             img = irr[l]
             if self.kernels is not None:
-                # Zero padding like the FFT "same" convolution of sim.sensor (light that leaves
-                # the sensor is lost); the kernel is symmetric, so correlation = convolution.
-                img = cv2.filter2D(img, -1, self.kernels[l], borderType=cv2.BORDER_CONSTANT)
+                img = sensor.airy_blur(img, kernel=self.kernels[l])
             ne += self.band_scale[l] * img
         np.maximum(ne, 0.0, out=ne)
         return ne

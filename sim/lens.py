@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim.variant import ensure_variant
+from sim.variant import delta_bsdf_base, ensure_variant
 
 __all__ = ["register", "thin_lens_bsdf", "lens_shape", "spherical_lens_mesh", "mesh_shape",
            "real_lens_shape", "PLUGIN"]
@@ -41,7 +41,7 @@ def register():
         return
     import drjit as dr
 
-    class ThinLensBSDF(mi.BSDF):
+    class ThinLensBSDF(delta_bsdf_base()):
         """Ideal thin lens as a delta transmission (see the module docstring)."""
 
         def __init__(self, props):
@@ -68,18 +68,6 @@ def register():
             bs.sampled_component = 0
             ok = active & (az > 1e-6)
             return bs, dr.select(ok, mi.Spectrum(self.transmittance), mi.Spectrum(0.0))
-
-        def eval(self, ctx, si, wo, active=True):
-            return mi.Spectrum(0.0)
-
-        def pdf(self, ctx, si, wo, active=True):
-            return mi.Float(0.0)
-
-        def eval_pdf(self, ctx, si, wo, active=True):
-            return mi.Spectrum(0.0), mi.Float(0.0)
-
-        def traverse(self, callback):
-            pass
 
         def to_string(self):
             return f"ThinLensBSDF[f={self.f}]"

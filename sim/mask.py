@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim.variant import ensure_variant
+from sim.variant import delta_bsdf_base, ensure_variant
 
 __all__ = ["register", "mask_shape", "cell_index", "quartz_transmittance", "PLUGIN"]
 
@@ -68,7 +68,7 @@ def register():
         return
     import drjit as dr
 
-    class MaskBSDF(mi.BSDF):
+    class MaskBSDF(delta_bsdf_base()):
         """Binary chrome-on-quartz mask: delta pass-through weighted by T_q or 0."""
 
         def __init__(self, props):
@@ -104,18 +104,6 @@ def register():
             bs.sampled_component = 0
             w = (1.0 - R) / (1.0 + R) * o
             return bs, dr.select(active, mi.Spectrum(w), mi.Spectrum(0.0))
-
-        def eval(self, ctx, si, wo, active=True):
-            return mi.Spectrum(0.0)
-
-        def pdf(self, ctx, si, wo, active=True):
-            return mi.Float(0.0)
-
-        def eval_pdf(self, ctx, si, wo, active=True):
-            return mi.Spectrum(0.0), mi.Float(0.0)
-
-        def traverse(self, callback):
-            pass
 
         def to_string(self):
             return "MaskBSDF[]"

@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from sim.glass import get_glass, min_deviation_incidence_rad
-from sim.variant import ensure_variant
+from sim.variant import delta_bsdf_base, ensure_variant
 
 __all__ = ["register", "dispersive_dielectric", "prism_geometry", "prism_shape", "PLUGIN"]
 
@@ -40,7 +40,7 @@ def register():
         return
     import drjit as dr
 
-    class DispersiveDielectric(mi.BSDF):
+    class DispersiveDielectric(delta_bsdf_base()):
         """Smooth dielectric with a Sellmeier index at the hero wavelength (delta transmission)."""
 
         def __init__(self, props):
@@ -79,18 +79,6 @@ def register():
                 entering = cos_i > 0
                 w = dr.select(entering, w * mi.Spectrum(4.0, 0.0, 0.0, 0.0), w)
             return bs, dr.select(active & (r < 1.0), w, mi.Spectrum(0.0))
-
-        def eval(self, ctx, si, wo, active=True):
-            return mi.Spectrum(0.0)
-
-        def pdf(self, ctx, si, wo, active=True):
-            return mi.Float(0.0)
-
-        def eval_pdf(self, ctx, si, wo, active=True):
-            return mi.Spectrum(0.0), mi.Float(0.0)
-
-        def traverse(self, callback):
-            pass
 
         def to_string(self):
             return f"DispersiveDielectric[B={self.B}, C={self.C}, hero={self.hero}]"

@@ -31,6 +31,7 @@ import hashlib
 import json
 import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -118,34 +119,53 @@ class Transport:
     path: Path | None = None
     _seg: list | None = None
 
-    def _segments(self, l: int):
-        """Distinct pixels of band l and where their runs start in the pixel-sorted entries."""
+    def _matrix(self, l: int):
+        """Band l as the distinct pixels it lights and a CSR matrix (pixels × texels).
+
+        The entries are sorted by pixel, so each pixel's run is one CSR row and the matrix
+        shares the index and weight arrays (no copy); scipy's CSR product gathers, weighs and
+        sums in one pass, about twice as fast as ``take`` + ``reduceat``.
+        """
         if self._seg is None:
             self._seg = [None] * len(self.pix)
         if self._seg[l] is None:
+            import scipy.sparse as sp
+
             upix, starts = np.unique(self.pix[l], return_index=True)
-            self._seg[l] = (upix.astype(np.int64), starts.astype(np.int64))
+            indptr = np.append(starts, self.tex[l].size).astype(np.int64 if self.tex[l].size
+                                                                  >= 2**31 else np.int32)
+            n_tex = self.shape[0] * self.shape[1]
+            a = sp.csr_matrix((self.w[l], self.tex[l], indptr), shape=(upix.size, n_tex))
+            self._seg[l] = (upix.astype(np.int64), a)
         return self._seg[l]
 
     def apply(self, cube: np.ndarray, bands=None, out: np.ndarray | None = None) -> np.ndarray:
         """Per-band irradiance (L, Hs, Ws) float32 of a cube (H, W, L) on this transport.
 
-        E_l = A_l f_l as a gather ``f_l[tex] * w`` and a segmented sum over each pixel's run of
-        entries (the entries are sorted by pixel), float32 throughout.
+        E_l = A_l f_l: a sparse product per band (each sensor pixel sums its entries'
+        ``w · f_l[tex]``), float32 throughout, bands in parallel.
         """
         cube = np.asarray(cube, dtype=np.float32)
         Hs, Ws = self.sensor
         L = len(self.pix)
         if out is None:
             out = np.zeros((L, Hs, Ws), dtype=np.float32)
-        for l in range(L) if bands is None else bands:
-            if self.pix[l].size == 0:
-                continue
-            band = np.ascontiguousarray(cube[:, :, l]).ravel()
-            vals = band[self.tex[l]]
-            vals *= self.w[l]
-            upix, starts = self._segments(l)
-            out[l].reshape(-1)[upix] = np.add.reduceat(vals, starts)
+        todo = [l for l in (range(L) if bands is None else bands) if self.pix[l].size]
+        for l in todo:  # the matrices are built once, outside the threads
+            self._matrix(l)
+
+        def one(l):
+            upix, a = self._matrix(l)
+            out[l].reshape(-1)[upix] = a @ np.ascontiguousarray(cube[:, :, l]).ravel()
+
+        # scipy's sparse product releases the GIL: bands run in parallel on all cores.
+        workers = min(len(todo), os.cpu_count() or 1)
+        if workers > 1:
+            with ThreadPoolExecutor(workers) as pool:
+                list(pool.map(one, todo))
+        else:
+            for l in todo:
+                one(l)
         return out
 
     def nbytes(self) -> int:

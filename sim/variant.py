@@ -17,7 +17,7 @@ from __future__ import annotations
 import os
 import warnings
 
-__all__ = ["ensure_variant", "PREFERRED", "FALLBACK", "is_vectorized"]
+__all__ = ["ensure_variant", "PREFERRED", "FALLBACK", "is_vectorized", "delta_bsdf_base"]
 
 PREFERRED = "llvm_ad_spectral"
 FALLBACK = "scalar_spectral"
@@ -89,3 +89,34 @@ def is_vectorized() -> bool:
     """True when the chosen variant is a JIT (vectorised) one."""
     mi = ensure_variant()
     return not mi.variant().startswith("scalar")
+
+
+_delta_bases: dict = {}
+
+
+def delta_bsdf_base():
+    """Base class of the simulator's purely specular BSDF plugins (lens, mask, prism).
+
+    A delta interaction has no density: ``eval`` and ``pdf`` are zero for every pair of
+    directions, and all the work is in ``sample``, which subclasses implement.  One class per
+    Mitsuba variant, since ``mi.BSDF`` differs between variants.
+    """
+    mi = ensure_variant()
+    base = _delta_bases.get(mi.variant())
+    if base is None:
+
+        class DeltaBSDF(mi.BSDF):
+            def eval(self, ctx, si, wo, active=True):
+                return mi.Spectrum(0.0)
+
+            def pdf(self, ctx, si, wo, active=True):
+                return mi.Float(0.0)
+
+            def eval_pdf(self, ctx, si, wo, active=True):
+                return mi.Spectrum(0.0), mi.Float(0.0)
+
+            def traverse(self, callback):
+                pass
+
+        base = _delta_bases[mi.variant()] = DeltaBSDF
+    return base
