@@ -41,14 +41,15 @@ import numpy as np
 from recon.errors import InputError
 
 __all__ = ["VIEW_ORDER", "calibrate", "render_scene", "reconstruct_views", "oracle_operator",
-           "reconstruct_oracle", "truth_on_grid", "design_for_views", "run", "DEFAULTS"]
+           "reconstruct_oracle", "solve_views", "truth_on_grid", "design_for_views", "run",
+           "DEFAULTS"]
 
 #: View ids in the order the 1/2/3/5/9-view experiments add them.
 VIEW_ORDER = (0, 1, 2, 3, 4, 5, 6, 7, 8)
 #: Reconstruction defaults (measured on the ``small`` design, see the README / report).
 DEFAULTS = {"solver": "fista-tv", "iters": 100, "tau": None}
 #: Default TV weight per solver (per view for the solvers whose data term sums over views):
-#: measured on the ``small`` design, see :func:`_tau`.
+#: measured on the ``small`` design, see :func:`tv_weight`.
 TAU_PER_VIEW = {"fista-tv": 0.005, "twist": 0.005}
 #: Calibrated mask values below this (fraction of the white level) are taken as chrome (0).
 MASK_FLOOR = 0.05
@@ -238,7 +239,7 @@ def _radiometry(design, caps, cal, model) -> np.ndarray:
     return g0 * fit_gains(f, caps.patch_radiance[inside])
 
 
-def _tau(solver, tau, n_views):
+def tv_weight(solver, tau, n_views):
     """The TV weight: ``tau`` if given, else the solver's default per view × the views (the
     data term sums over the views' pixels; GAP-TV's projection step does not, so its weight
     is per view)."""
@@ -382,21 +383,41 @@ def _check_views(n_views) -> tuple[int, ...]:
     return VIEW_ORDER[:n]
 
 
-def normalised(op, g):
-    r"""``(s·H, s·g)`` with the measured rows' mean squared norm made 1.
+def unit_row_scale(op) -> float:
+    r"""The :math:`s` that makes the mean squared norm of the measured rows of :math:`sH` one.
 
     The data term :math:`\tfrac12\|s g - s H f\|^2` then weighs a measurement pixel alike
     whatever the exposure units of :math:`H`, so one TV weight :math:`\tau` serves the
     calibrated and the exact operator, the ``small`` and the ``paper`` design.
     """
-    from recon.operators import ScaledOperator
-
     rn = np.asarray(op.row_norms_sq(), dtype=np.float64)
     pos = rn[rn > 0]
-    if pos.size == 0:
-        return op, g
-    s = 1.0 / math.sqrt(float(pos.mean()))
+    return 1.0 if pos.size == 0 else 1.0 / math.sqrt(float(pos.mean()))
+
+
+def normalised(op, g):
+    """``(s·H, s·g)`` with :math:`s` from :func:`unit_row_scale`."""
+    from recon.operators import ScaledOperator
+
+    s = unit_row_scale(op)
     return ScaledOperator(op, s), (g * np.float32(s)).astype(g.dtype, copy=False)
+
+
+def solve_views(op, g, n_views: int, *, solver: str = DEFAULTS["solver"],
+                iters: int = DEFAULTS["iters"], tau=None, x0=None, truth=None, wavelengths=None,
+                progress: bool = False):
+    """Reconstruct measurements ``g`` of ``n_views`` views through ``op`` the way every path of
+    the pipeline does: operator and data brought to unit mean row norm (:func:`normalised`),
+    the TV weight from :func:`tv_weight`, then :func:`recon.app.reconstruct`.  Adds ``seconds``."""
+    from recon.app import reconstruct
+
+    op, g = normalised(op, g)
+    t0 = time.perf_counter()
+    tau = tv_weight(solver, tau, n_views)
+    cube, info = reconstruct(g, op, solver=solver, iters=iters, tau=tau, x0=x0, truth=truth,
+                             wavelengths=wavelengths, progress=progress)
+    info["seconds"] = time.perf_counter() - t0
+    return cube, info
 
 
 def calibrated_operator(cal, view_ids, model: str | None = None):
@@ -449,7 +470,6 @@ def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = DEFAULTS["
         :func:`recon.app.reconstruct`'s, plus ``view_ids``, ``seconds`` and, with a truth,
         ``metrics`` and ``truth_grid`` (the truth on the reconstruction grid).
     """
-    from recon.app import reconstruct
     from recon.calibration import check_design, measurements
 
     ids = _check_views(n_views)
@@ -462,17 +482,14 @@ def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = DEFAULTS["
     if not (math.isfinite(s) and s > 0):
         raise InputError(f"the frame's radiance_scale must be positive, got {s}")
     g = measurements(frame, cal, ids, metadata=metadata) / np.float32(s)
-    op, g = normalised(calibrated_operator(cal, ids, model), g)
-    tau = _tau(solver, tau, len(ids))
     tg = None
     if truth is not None:
         t = np.asarray(truth, dtype=np.float32)
         tg = t if t.shape == tuple(cal.cube_shape) else \
             truth_on_grid(t, _design_of(metadata, design), cal)
-    t0 = time.perf_counter()
-    cube, info = reconstruct(g, op, solver=solver, iters=iters, tau=tau, x0=x0, truth=tg,
-                             wavelengths=cal.wavelengths, progress=progress)
-    info["seconds"] = time.perf_counter() - t0
+    cube, info = solve_views(calibrated_operator(cal, ids, model), g, len(ids), solver=solver,
+                             iters=iters, tau=tau, x0=x0, truth=tg, wavelengths=cal.wavelengths,
+                             progress=progress)
     info["view_ids"] = list(ids)
     if tg is not None:
         info["truth_grid"] = tg
@@ -491,20 +508,14 @@ def reconstruct_oracle(frame, metadata, design, n_views, *, solver: str = DEFAUL
                        inversion: bool = True, op=None):
     """Reconstruct a frame with the exact operator (:func:`oracle_operator`), on the
     ground-truth grid.  Returns ``(cube (v, v, L), info)``."""
-    from recon.app import reconstruct
     from sim.oracle import oracle_measurements
 
     _check_views(n_views)
     g = oracle_measurements(frame, metadata, design, n_views)
     if op is None:
         op = oracle_operator(design, n_views, inversion=inversion)
-    op, g = normalised(op, g)
-    tau = _tau(solver, tau, n_views)
-    t0 = time.perf_counter()
-    cube, info = reconstruct(g, op, solver=solver, iters=iters, tau=tau, truth=truth,
-                             wavelengths=design.wavelengths, progress=progress)
-    info["seconds"] = time.perf_counter() - t0
-    return cube, info
+    return solve_views(op, g, n_views, solver=solver, iters=iters, tau=tau, truth=truth,
+                       wavelengths=design.wavelengths, progress=progress)
 
 
 # ------------------------------------------------------------------------------- run

@@ -327,12 +327,16 @@ class SegmentReconstructor:
 
     def __init__(self, op, measure, *, solver: str = "gap-tv", tau: float | None = None,
                  threads: int | None = None, to_grid=None, offset=None, kind: str = ""):
-        from recon.app import default_tau
+        from kaleidospec.pipeline import tv_weight, unit_row_scale
+        from recon.operators import ScaledOperator
 
-        self.op = op
-        self._measure = measure
+        # The pipeline's scaling and TV weight, so that a video frame is reconstructed exactly
+        # as `kaleidospec run` reconstructs a still (kaleidospec.pipeline.solve_views).
+        scale = unit_row_scale(op)
+        self.op = ScaledOperator(op, scale)
+        self._measure = lambda frame, meta: measure(frame, meta) * np.float32(scale)
         self.solver = solver
-        self.tau = default_tau(solver) if tau is None else float(tau)
+        self.tau = tv_weight(solver, tau, op.oshape[0])
         self.threads = threads
         self._to_grid = to_grid
         self._offset = offset

@@ -95,14 +95,13 @@ def oracle_run(design, n_views: int, inversion: bool, truth, wl, *, solver, iter
                noise):
     """Reconstruct ``truth`` through the exact operator (simulated measurement)."""
     from kaleidospec import pipeline
-    from recon.app import reconstruct
 
     op = pipeline.oracle_operator(design, n_views, inversion=inversion)
     peak = float(truth.max())
-    # The solver's TV weight is tuned for data in [0, 1]: work on truth / peak.
     truth_bm = np.ascontiguousarray(np.moveaxis(truth / peak, 2, 0), dtype=np.float32)
     g = noisy_measurement(op, truth_bm, design, seed, noise)
-    cube, info = reconstruct(g, op, solver=solver, iters=iters, tau=tau)
+    # The same normalisation and TV weight as every reconstruction of the pipeline.
+    cube, info = pipeline.solve_views(op, g, n_views, solver=solver, iters=iters, tau=tau)
     return cube * np.float32(peak), info
 
 
