@@ -3,24 +3,10 @@
 import numpy as np
 import pytest
 
+from cases import piecewise_cube
+from recon.metrics import psnr
 from recon.operators import kaleidoscope_cassi, standard_cassi
 from recon.solvers import gap_tv
-
-
-def piecewise_cube(l=8, h=32, w=32, seed=0):
-    rng = np.random.default_rng(seed)
-    x = np.empty((l, h, w), np.float32)
-    x[:] = 0.3 * rng.uniform(0.5, 1, (l, 1, 1))
-    for _ in range(4):
-        y0, x0 = rng.integers(0, h - 8), rng.integers(0, w - 8)
-        x[:, y0:y0 + rng.integers(6, 14), x0:x0 + rng.integers(6, 14)] = \
-            rng.uniform(0.2, 1, (l, 1, 1))
-    return x
-
-
-def psnr(x, truth):
-    d = x.astype(np.float64) - truth
-    return 10 * np.log10(float(truth.max()) ** 2 / np.mean(d * d))
 
 
 @pytest.fixture(scope="module")
