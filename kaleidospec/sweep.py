@@ -53,6 +53,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from kaleidospec.pipeline import DEFAULTS
 from recon.errors import InputError
 
 __all__ = [
@@ -111,8 +112,8 @@ class SweepSettings:
     overrides: dict = field(default_factory=dict)
     scene: str = "colorchecker"
     n_views: int = 5
-    solver: str = "gap-tv"
-    iters: int = 50
+    solver: str = DEFAULTS["solver"]
+    iters: int = DEFAULTS["iters"]
     tau: float | None = None
     seed: int = 0
     spp: int = 8

@@ -26,9 +26,10 @@ def _run(kind: str, start, stop, step, design, set_, scene, views, solver, iters
         raise InputError(f"--workers must be at least 1, got {workers}")
     if tau is not None and not tau > 0:
         raise InputError(f"--tau must be positive, got {tau}")
+    given = {k: v for k, v in (("solver", solver), ("iters", iters)) if v is not None}
     settings = SweepSettings(kind=kind, design=design, overrides=parse_overrides(set_),
-                             scene=scene, n_views=views, solver=solver, iters=iters, tau=tau,
-                             seed=seed, spp=spp, reconstruct=recon)
+                             scene=scene, n_views=views, tau=tau, seed=seed, spp=spp,
+                             reconstruct=recon, **given)
     # Validate the base design (unknown fields, bad values) before any work starts.
     from kaleidospec.sweep import _base_design
 
@@ -51,8 +52,10 @@ def _options(kind: str):
         scene: str = typer.Option("colorchecker", "--scene", help="Scene reconstructed at "
                                   "each point (built-in name or cube file)."),
         views: int = typer.Option(5, "--views", help="Views used for the reconstruction (1..9)."),
-        solver: str = typer.Option("gap-tv", "--solver", help="twist, gap-tv or fista-tv."),
-        iters: int = typer.Option(50, "--iters", help="Solver iterations."),
+        solver: Optional[str] = typer.Option(None, "--solver", help="twist, gap-tv or fista-tv "
+                                             "(default: kaleidospec run's, fista-tv)."),
+        iters: Optional[int] = typer.Option(None, "--iters", help="Solver iterations (default: "
+                                            "kaleidospec run's, 100)."),
         tau: Optional[float] = typer.Option(None, "--tau", help="TV weight (solver default)."),
         seed: int = typer.Option(0, "--seed", help="Render/noise seed."),
         spp: int = typer.Option(8, "--spp", help="Samples per pixel of the measurement renders."),
