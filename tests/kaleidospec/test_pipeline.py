@@ -113,3 +113,20 @@ def test_bad_input(setup):
     wide = pipeline.design_for_views(d, 9)
     assert wide.views == tuple(range(9)) and wide.hash != d.hash
     assert pipeline.design_for_views(d, 5) is d
+
+
+def test_colorchecker_patches_and_their_colour_error(setup):
+    pipeline, d, cal, frame, meta, truth, wl = setup
+    patches = pipeline.colorchecker_patches(d, cal)
+    h, w, _ = cal.cube_shape
+    assert len(patches) >= 12
+    tg = pipeline.truth_on_grid(truth, d, cal)
+    for y, x, ph, pw in patches.values():
+        assert 0 <= y and y + ph <= h and 0 <= x and x + pw <= w and ph > 1 and pw > 1
+        # The middle half of a patch is flat in the truth: one reflectance under one light.
+        block = tg[y:y + ph, x:x + pw]
+        assert np.allclose(block, block[0, 0], rtol=1e-3, atol=1e-6)
+    boxes = list(patches.values())
+    assert pipeline.patch_delta_e2000(tg, tg, boxes, wl) == pytest.approx(0.0, abs=1e-9)
+    tinted = tg * np.linspace(0.7, 1.3, tg.shape[2], dtype=np.float32)
+    assert pipeline.patch_delta_e2000(tinted, tg, boxes, wl) > 2.0
