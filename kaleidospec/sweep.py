@@ -627,9 +627,9 @@ def plot_sweep(rows: list[dict], path, settings: SweepSettings) -> Path:
             ax.axhline(TARGET_SPAN_PX, color="tab:red", lw=0.8, ls=":", label="60 px")
         for b in bad:
             ax.axvspan(b - 0.4 * step, b + 0.4 * step, color="0.85", lw=0)
-        if x.min() - step <= paper <= x.max() + step:
-            ax.axvline(paper, color="k", lw=0.8, ls="-.", label=f"paper ({paper:g}{unit})")
-        ax.set_xlim(x.min() - step, x.max() + step)
+        # The paper's design is always marked, the axis widened to show it if need be.
+        ax.axvline(paper, color="k", lw=0.8, ls="-.", label=f"paper ({paper:g}{unit})")
+        ax.set_xlim(min(x.min() - step, paper - step), max(x.max() + step, paper + step))
         ax.set_title(title, fontsize=10)
         ax.set_xlabel(f"{SWEEPS[settings.kind][2]} ({unit})")
         ax.grid(alpha=0.3)
