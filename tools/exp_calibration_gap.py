@@ -42,7 +42,11 @@ def run(a) -> None:
     build = transport.load_or_build
 
     def what_if(*args, **kw):
-        kw["sampling"], kw["spp"] = a.sampling, a.spp
+        # Band-wide transports take the what-if sampling; monochromatic ones (the line
+        # captures, already at one wavelength) keep theirs.
+        if kw.get("sampling", "box") == "box":
+            kw["sampling"] = a.sampling
+        kw["spp"] = a.spp
         return build(*args, **kw)
 
     transport.load_or_build = what_if
