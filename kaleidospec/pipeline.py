@@ -589,7 +589,6 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
     from recon.io.atomic import write_text
     from recon.io.cubes import write_cube
     from recon.io.raw import write_raw
-    from recon.metrics import cube_to_srgb
 
     counts = parse_views(views)
     if widen:

@@ -28,8 +28,8 @@ import numpy as np
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
 from recon.prox.tv import TVProx
-from recon.solvers.base import (IterationLoop, SolverResult, check_problem,
-                                preconditioned_norm_sq, safe_reciprocal)
+from recon.solvers.base import IterationLoop, SolverResult, check_problem
+from recon.solvers.gap_tv import projection_weights
 
 __all__ = ["temporal_prox", "gap_tv_temporal"]
 
@@ -107,16 +107,7 @@ def gap_tv_temporal(op: LinearOperator, g: np.ndarray, *, ref: np.ndarray, mu: f
     if int(tv_iters) < 1:
         raise InputError(f"tv_iters must be >= 1, got {tv_iters}")
     loop = IterationLoop(tol, callback)
-    phi_inv = safe_reciprocal(op.row_norms_sq(), dtype)
-    if not np.any(phi_inv):
-        raise InputError("the operator is zero: nothing to reconstruct")
-    if step is None:
-        step = 1.0 / preconditioned_norm_sq(op, phi_inv, dtype=dtype)
-    step = float(step)
-    if not (math.isfinite(step) and step > 0):
-        raise InputError(f"step must be > 0, got {step}")
-    if step != 1.0:
-        phi_inv *= step
+    phi_inv, step = projection_weights(op, dtype, step)
 
     f = x0 if x0 is not None else r.copy()
     prox = TVProx(op.ishape, dtype, True, threads)

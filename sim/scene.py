@@ -88,7 +88,7 @@ def build_scene(design, cube_lhw: np.ndarray | None = None, wavelengths=None, *,
     """
     if pupil_fraction is None:
         pupil_fraction = design.imaging_stop_fraction
-    mi = ensure_variant()
+    ensure_variant()
     from sim import diffuser, kaleidoscope, lens, mask, prism
 
     if lenses not in ("thin", "real"):

@@ -124,7 +124,7 @@ def main(argv=None) -> int:
           f"{np.mean(cold):.2f} dB")
     print(f"[reconstruct] warm x{args.iters} (frame 0 cold): {n / t_warm:5.2f} frames/s "
           f"(target >= 1), mean PSNR {np.mean(warm):.2f} dB")
-    print(f"[reconstruct] warm - cold PSNR per frame (dB): "
+    print("[reconstruct] warm - cold PSNR per frame (dB): "
           + " ".join(f"{x:+.2f}" for x in gap))
     print(f"[reconstruct] warm frames 1..{n - 1}: worst {gap[1:].min():+.2f} dB, mean "
           f"{gap[1:].mean():+.2f} dB (target: within 0.5 dB)")

@@ -34,6 +34,32 @@ from recon.solvers.base import (IterationLoop, SolverResult, check_problem,
 __all__ = ["gap_tv"]
 
 
+def projection_weights(op: LinearOperator, dtype,
+                       step: float | None = None) -> tuple[np.ndarray, float]:
+    r"""GAP's weights :math:`s\,\Phi^{-1}`, :math:`\Phi = \mathrm{diag}(HH^\top)`, shape ``oshape``.
+
+    The step :math:`s` is 1 where :math:`HH^\top` is diagonal and
+    :math:`1/\lVert\Phi^{-1/2}H\rVert^2` otherwise (several views share scene voxels), unless
+    given.  Rows of :math:`H` that are zero get weight 0.  Returns the weights and :math:`s`.
+    """
+    phi_inv = safe_reciprocal(op.row_norms_sq(), dtype)
+    if phi_inv.shape != op.oshape:
+        raise InputError(f"row_norms_sq() shape {phi_inv.shape} != oshape {op.oshape}")
+    if not np.any(phi_inv):
+        # H = 0 (e.g. an all-closed mask): every f fits the data, so the answer would be the
+        # start, 0, with no warning.  TwIST and FISTA refuse this problem too.
+        raise InputError("the operator is zero (every row of H is zero, e.g. an all-closed "
+                         "mask): nothing to reconstruct")
+    if step is None:
+        step = 1.0 / preconditioned_norm_sq(op, phi_inv, dtype=dtype)
+    step = float(step)
+    if not (math.isfinite(step) and step > 0):
+        raise InputError(f"step must be > 0, got {step}")
+    if step != 1.0:
+        phi_inv *= step
+    return phi_inv, step
+
+
 def gap_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float = 0.1,
            x0: np.ndarray | None = None, tol: float | None = None, callback=None,
            tv_iters: int = 2, warm_dual: bool = True, accelerate: bool = True,
@@ -103,22 +129,7 @@ def gap_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float = 0
     if int(tv_iters) < 1:
         raise InputError(f"tv_iters must be >= 1, got {tv_iters}")
     loop = IterationLoop(tol, callback)
-    phi_inv = safe_reciprocal(op.row_norms_sq(), dtype)
-    if phi_inv.shape != op.oshape:
-        raise InputError(f"row_norms_sq() shape {phi_inv.shape} != oshape {op.oshape}")
-    if not np.any(phi_inv):
-        # H = 0 (e.g. an all-closed mask): every f fits the data, so the answer would be the
-        # start, 0, with no warning.  TwIST and FISTA refuse this problem too.
-        raise InputError("the operator is zero (every row of H is zero, e.g. an all-closed "
-                         "mask): nothing to reconstruct")
-
-    if step is None:
-        step = 1.0 / preconditioned_norm_sq(op, phi_inv, dtype=dtype)
-    step = float(step)
-    if not (math.isfinite(step) and step > 0):
-        raise InputError(f"step must be > 0, got {step}")
-    if step != 1.0:
-        phi_inv *= step
+    phi_inv, step = projection_weights(op, dtype, step)
 
     f = x0 if x0 is not None else np.ascontiguousarray(op.adjoint(g * phi_inv), dtype=dtype)
     prox = TVProx(op.ishape, dtype, isotropic, threads)

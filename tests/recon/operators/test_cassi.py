@@ -195,7 +195,6 @@ def test_kaleidoscope_views_are_mirror_images():
 def _registered_positions(op, h, w, l_, y0, c0):
     """Column of each band's image of a point at (y0, c0), per view, after registering the
     view to the centre (undoing the view's mirror on the measurement)."""
-    wm = op.oshape[2]
     pos = np.zeros((op.n_views, l_))
     for l in range(l_):
         f = np.zeros((l_, h, w))
