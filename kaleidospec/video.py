@@ -674,7 +674,14 @@ def reconstruct_sequence(out_dir, n_frames: int, segments, settings: dict, *,
                                       pure=False) for a, b in pending]
                 remaining = set(futs)
                 while remaining:
-                    res = dwait(list(remaining), timeout=poll_s, return_when=FIRST_COMPLETED)
+                    try:
+                        res = dwait(list(remaining), timeout=poll_s,
+                                    return_when=FIRST_COMPLETED)
+                    except TimeoutError:
+                        # Dask's wait raises when nothing finished within the poll interval
+                        # (unlike concurrent.futures.wait): show the progress, wait again.
+                        tick()
+                        continue
                     for f in res.done:
                         results.append(f.result())
                     remaining = set(res.not_done)

@@ -196,3 +196,22 @@ def test_cli_bad_input_exits_2(tmp_path, capsys):
             main(["sweep", "mirror-length", "--out", str(tmp_path / "x"), "--no-recon", *args])
         assert e.value.code == 2
         assert "error" in capsys.readouterr().err
+
+
+def test_sweep_runs_on_a_dask_cluster(cache, tmp_path):
+    """`--scheduler` sends the points to a Dask scheduler: here a local cluster on loopback."""
+    pytest.importorskip("mitsuba")
+    distributed = pytest.importorskip("distributed")
+    import kaleidospec.sweep as sw
+
+    local = sw.run_sweep(_settings(), [30.0], tmp_path / "local", workers=1, log=None,
+                         plot=False)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                                  host="127.0.0.1", dashboard_address=None) as cluster:
+        res = sw.run_sweep(_settings(), [30.0, 86.0], tmp_path / "dask", log=None, plot=False,
+                           scheduler=cluster.scheduler_address)
+    assert [r["status"] for r in res.results] == ["ok", "invalid"]
+    # The same point computed on the cluster and locally measures the same.
+    a, b = (sw.rows_from_results(r.results, _settings())[0] for r in (local, res))
+    for key in ("dispersion_span_meas_px", "view_size_meas_px"):
+        assert float(b[key]) == pytest.approx(float(a[key]), rel=1e-6), key

@@ -174,6 +174,29 @@ def test_parallel_segments_match_serial(sequence, tmp_path):
     assert warm == [False, True, False, True]  # each segment starts cold
 
 
+def test_segments_run_on_a_dask_cluster(sequence, tmp_path):
+    """`--scheduler` runs the segments on a Dask cluster (a local one on loopback here) and
+    gives the same cubes as the serial engine."""
+    import shutil
+
+    distributed = pytest.importorskip("distributed")
+    from kaleidospec.video import VideoLayout, reconstruct_sequence
+
+    out, _, settings = sequence
+    other = tmp_path / "dask"
+    shutil.copytree(out, other)
+    segs = [[0, 2], [2, 4]]
+    a = reconstruct_sequence(out, N_FRAMES, segs, settings, workers=1, progress=False)
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  host="127.0.0.1", dashboard_address=None) as cluster:
+        b = reconstruct_sequence(other, N_FRAMES, segs, settings, progress=False,
+                                 scheduler=cluster.scheduler_address)
+    assert a["backend"] == "serial" and b["backend"] == "dask"
+    la, lb = VideoLayout(out), VideoLayout(other)
+    for i in range(N_FRAMES):
+        np.testing.assert_array_equal(read_cube(la.cube(i))[0], read_cube(lb.cube(i))[0])
+
+
 def test_summary_and_video(sequence):
     import imageio.v3 as iio
 
