@@ -656,7 +656,6 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
                 cubes[n] = cube
                 write_cube(tmp / f"cube_{n}views.exr", cube, wl)
                 _write_png(tmp / f"srgb_{n}views.png", _srgb(cube, wl, peak)[0])
-                result["tau"] = info["tau"]
                 result["views"][str(n)] = _entry(info, n)
                 if patches:
                     result["views"][str(n)]["delta_e2000_patches"] = patch_delta_e2000(
@@ -731,7 +730,8 @@ def summary_lines(result) -> list[str]:
     """The human summary ``kaleidospec run`` prints."""
     lines = [f"scene {result['scene']}, design {result['design_hash']}, cube "
              f"{'x'.join(str(x) for x in result['cube_shape'])}, {result['solver']} x"
-             f"{result['iters']} (tau {result['tau']})",
+             f"{result['iters']}, tau " + " / ".join(
+                 f"{e['tau']:g}" for e in result["views"].values() if e.get("tau") is not None),
              f"calibration: {'cached' if result['calibration']['cached'] else 'rendered'} "
              f"({result['calibration']['seconds']:.1f} s)"]
     # dE00: per pixel of the sRGB rendering; dE00p: per ColorChecker patch (mean spectra).
