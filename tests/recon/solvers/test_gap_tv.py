@@ -5,16 +5,7 @@ import pytest
 
 from cases import piecewise_cube
 from recon.metrics import psnr
-from recon.operators import kaleidoscope_cassi, standard_cassi
 from recon.solvers import gap_tv
-
-
-@pytest.fixture(scope="module")
-def ops():
-    rng = np.random.default_rng(1)
-    return {"standard": standard_cassi((rng.random((32, 32)) > 0.5).astype(np.float32), 1, 8),
-            "kaleido3": kaleidoscope_cassi((rng.random((3, 32, 32)) > 0.5).astype(np.float32),
-                                           np.arange(8, dtype=float), 3)}
 
 
 @pytest.mark.parametrize("key,floor", [("standard", 19.0), ("kaleido3", 27.0)])

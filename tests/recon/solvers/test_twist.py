@@ -7,17 +7,8 @@ import pytest
 
 from cases import piecewise_cube
 from recon.metrics import psnr
-from recon.operators import kaleidoscope_cassi, standard_cassi
 from recon.operators.base import LinearOperator
 from recon.solvers import twist, twist_parameters
-
-
-@pytest.fixture(scope="module")
-def ops():
-    rng = np.random.default_rng(1)
-    return {"standard": standard_cassi((rng.random((32, 32)) > 0.5).astype(np.float32), 1, 8),
-            "kaleido3": kaleidoscope_cassi((rng.random((3, 32, 32)) > 0.5).astype(np.float32),
-                                           np.arange(8, dtype=float), 3)}
 
 
 def test_parameters_follow_bioucas_dias_figueiredo():

@@ -1,0 +1,14 @@
+"""Operators shared by the solver tests: a standard CASSI and a three-view kaleidoscope."""
+
+import numpy as np
+import pytest
+
+from recon.operators import kaleidoscope_cassi, standard_cassi
+
+
+@pytest.fixture(scope="module")
+def ops():
+    rng = np.random.default_rng(1)
+    return {"standard": standard_cassi((rng.random((32, 32)) > 0.5).astype(np.float32), 1, 8),
+            "kaleido3": kaleidoscope_cassi((rng.random((3, 32, 32)) > 0.5).astype(np.float32),
+                                           np.arange(8, dtype=float), 3)}
