@@ -41,8 +41,8 @@ import numpy as np
 from recon.errors import InputError
 
 __all__ = ["VIEW_ORDER", "calibrate", "render_scene", "reconstruct_views", "oracle_operator",
-           "reconstruct_oracle", "solve_views", "truth_on_grid", "design_for_views", "run",
-           "DEFAULTS"]
+           "reconstruct_oracle", "band_mean_dispersion", "solve_views", "truth_on_grid",
+           "design_for_views", "run", "DEFAULTS"]
 
 #: View ids in the order the 1/2/3/5/9-view experiments add them.
 VIEW_ORDER = (0, 1, 2, 3, 4, 5, 6, 7, 8)
@@ -144,7 +144,7 @@ def calibrate_from_captures(design, *, repeats: int = 4, progress: bool = False,
     from recon.calibration import (airy_radius_px, build_calibration, find_view_boxes,
                                    fit_dispersion, line_centroids, mask_images,
                                    view_homographies)
-    from recon.calibration.dispersion import band_positions
+    from recon.calibration.dispersion import band_mean_positions, band_positions
     from recon.calibration.mask import view_masks, view_stack, white_levels
     from sim.captures import CHECKER_NM, render_captures
     from sim.transport import band_intervals
@@ -183,13 +183,16 @@ def calibrate_from_captures(design, *, repeats: int = 4, progress: bool = False,
         expo = np.array([m["radiance_scale"] for m in caps.meta["white"]], dtype=np.float64)
         gains0 = expo / levels
         # The bands' wavelength intervals are the band-pass filters' (a lab knows them from
-        # the filters' datasheet): each band smears over phi(lo)..phi(hi).
+        # the filters' datasheet): each band smears over phi(lo)..phi(hi), and its scene sits
+        # at the mean of that smear, not where its nominal wavelength lands (measured on
+        # `small`: 0.8 px apart for the 450 nm band; `tools/exp_calibration_gap.py`).
+        intervals = band_intervals(design, wl)
         cal = build_calibration(
             view_ids=ids, view_boxes=boxes, box_homographies=hb, mask_images=masks,
-            wavelengths=wl, dispersion=fit.positions(wl),
+            wavelengths=wl, dispersion=band_mean_positions(fit, intervals, SMEAR_SAMPLES),
             checker_dispersion=fit.positions([CHECKER_NM])[:, 0], phase=True,
             gains=gains0, design_hash=design.hash, captures=caps.names(),
-            band_positions=(band_positions(fit, band_intervals(design, wl), SMEAR_SAMPLES)
+            band_positions=(band_positions(fit, intervals, SMEAR_SAMPLES)
                             if smeared else None))
         extra = {}
         if smeared:
@@ -321,19 +324,30 @@ def grid_offset(design, cal) -> tuple[float, float]:
     :math:`(y_v + o_y,\ x_v + o_x)` is reconstruction pixel :math:`(y_v, x_v)`.
 
     The centre view's cube column :math:`x` lands, in band :math:`l`, on sensor column
-    :math:`c_0 + x + \varphi_l` (design); the calibration puts reconstruction column
-    :math:`x_v` on box column :math:`x_v + o_{0,l}`, i.e. sensor column
-    :math:`b_0 + x_v + o_{0,l}`.  So :math:`o_x = b_0 - c_0 + \overline{o_{0,l} - \varphi_l}`
-    (mean over bands), and :math:`o_y = b_{0,y} - r_0`.
+    :math:`c_0 + x + \bar\varphi_l` on average over the band (design,
+    :func:`band_mean_dispersion`); the calibration puts reconstruction column :math:`x_v` on box
+    column :math:`x_v + o_{0,l}` (the band's measured mean position), i.e. sensor column
+    :math:`b_0 + x_v + o_{0,l}`.  So :math:`o_x = b_0 - c_0 + \overline{o_{0,l} -
+    \bar\varphi_l}` (mean over bands), and :math:`o_y = b_{0,y} - r_0`.
     """
     if 0 not in cal.view_ids:
         raise InputError("the calibration has no centre view")
     i = cal.view_ids.index(0)
     by, bx = (float(x) for x in cal.view_boxes[i, :2])
     r0, c0 = design.code_region_px(0)[:2]
-    phi = design.dispersion_px_at(cal.wavelengths)
-    ox = bx - c0 + float(np.mean(cal.offsets[i] - phi))
+    ox = bx - c0 + float(np.mean(cal.offsets[i] - band_mean_dispersion(design, cal.wavelengths)))
     return by - r0, ox
+
+
+def band_mean_dispersion(design, wavelengths) -> np.ndarray:
+    r"""(L,) the design's dispersion :math:`\varphi` averaged over every band's interval (px),
+    the counterpart of :func:`recon.calibration.band_mean_positions`."""
+    from recon.calibration.dispersion import band_wavelengths
+    from sim.transport import band_intervals
+
+    lam = band_wavelengths(band_intervals(design, np.asarray(wavelengths, dtype=np.float64)),
+                           SMEAR_SAMPLES)
+    return design.dispersion_px_at(lam.ravel()).reshape(lam.shape).mean(axis=1)
 
 
 def _design_of(metadata, design=None):
@@ -496,11 +510,12 @@ def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = DEFAULTS["
     return cube, info
 
 
-def oracle_operator(design, n_views: int, *, inversion: bool = True):
-    """The exact operator of ``design`` on the ground-truth grid (:mod:`sim.oracle`)."""
+def oracle_operator(design, n_views: int, *, inversion: bool = True, seed: int = 0):
+    """The exact operator of ``design`` on the ground-truth grid (:mod:`sim.oracle`); ``seed``
+    other than 0 traces the optics afresh instead of reusing the frames' transport."""
     from sim.oracle import oracle_operator as _op
 
-    return _op(design, n_views, inversion=inversion)
+    return _op(design, n_views, inversion=inversion, seed=seed)
 
 
 def reconstruct_oracle(frame, metadata, design, n_views, *, solver: str = DEFAULTS["solver"],

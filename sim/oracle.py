@@ -121,7 +121,8 @@ def _flip_perm(h: int, w: int, axes) -> np.ndarray:
     return np.ascontiguousarray(idx).ravel()
 
 
-def oracle_operator(design, n_views: int, *, inversion: bool = True, spp: int = 4):
+def oracle_operator(design, n_views: int, *, inversion: bool = True, spp: int = 4,
+                    seed: int = 0):
     """The exact operator of ``design`` for its first ``n_views`` views (module notes).
 
     Parameters
@@ -134,6 +135,11 @@ def oracle_operator(design, n_views: int, *, inversion: bool = True, spp: int = 
         ``False``: every view composed with its mirror flips (no dispersion inversion).
     spp : int
         Samples per pixel of the transport (the scene frames' default, so the same cache).
+    seed : int
+        Random seed of the transport's trace.  0 is the trace the frames are rendered with:
+        the operator then knows which texel and wavelength each of a pixel's ``spp`` rays met
+        (the frame's Monte Carlo draw).  Another seed traces the same optics afresh: the
+        instrument's physics without that draw (``tools/exp_calibration_gap.py``).
 
     Returns
     -------
@@ -145,7 +151,7 @@ def oracle_operator(design, n_views: int, *, inversion: bool = True, spp: int = 
     ids = _view_ids(n_views, design)
     v = design.view_size_px
     wl = design.wavelengths
-    tr = load_or_build(design, (v, v), wl, spp=spp, sampling="box")
+    tr = load_or_build(design, (v, v), wl, spp=spp, seed=seed, sampling="box")
     hs, ws = tr.sensor
     # Sensor pixel -> output row (view-major), -1 outside the chosen views.
     where = np.full(hs * ws, -1, dtype=np.int64)

@@ -15,8 +15,8 @@ Typical order: views → dispersion → masks → geometry → :func:`build_cali
 reconstruct the ColorChecker → radiometry.
 """
 
-from recon.calibration.dispersion import (DispersionFit, band_positions, fit_dispersion,
-                                          line_centroids, normalise_offsets,
+from recon.calibration.dispersion import (DispersionFit, band_mean_positions, band_positions,
+                                          fit_dispersion, line_centroids, normalise_offsets,
                                           normalise_offsets_phase)
 from recon.calibration.geometry import (apply_homography, find_corners, refine_homography,
                                         to_view_coordinates, unmask, view_homographies)
@@ -30,7 +30,8 @@ from recon.calibration.views import VIEW_FLIPS, VIEW_GRID, find_view_boxes
 
 __all__ = [
     "Calibration", "DispersionFit", "VIEW_FLIPS", "VIEW_GRID", "airy_kernel", "airy_radius_px",
-    "apply_gains", "apply_homography", "band_positions", "build_calibration", "calibration_path", "check_design",
+    "apply_gains", "apply_homography", "band_mean_positions", "band_positions",
+    "build_calibration", "calibration_path", "check_design",
     "find_corners", "find_view_boxes", "fit_dispersion", "fit_gains", "line_centroids",
     "load_cached", "load_calibration", "mask_images", "measurements", "normalise_offsets",
     "normalise_offsets_phase",

@@ -46,7 +46,7 @@ FORMAT = "kaleidospec-calibration"
 VERSION = 1
 #: Calibration code version (part of the cache key, :func:`calibration_path`): bump it when the
 #: capture renderer or the pipeline's calibration steps change.
-CODE_VERSION = 4
+CODE_VERSION = 5
 _CODE_VERSION: str | None = None
 ARRAY_FIELDS = ("view_boxes", "homographies", "mask_images", "offsets", "gains", "wavelengths")
 #: Arrays a calibration may hold (saved only when set).

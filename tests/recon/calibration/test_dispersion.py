@@ -115,3 +115,19 @@ def test_fit_positions_include_the_line_column():
     cen = np.stack([phi + 12.3, phi + 30.0])
     fit = fit_dispersion(lam, cen, ref_nm=550.0, degree=3)
     np.testing.assert_allclose(fit.positions(lam), cen, atol=1e-6)
+
+
+def test_band_mean_positions_average_the_band():
+    from recon.calibration.dispersion import band_mean_positions
+
+    lam = np.array([450.0, 500.0, 550.0, 600.0, 650.0])
+    u = 1.0 / (lam * 1e-3) ** 2
+    cen = np.stack([10.0 - 8.0 * (u - u[2]), 30.0 + 7.0 * (u - u[2])])     # linear in 1/λ²
+    fit = fit_dispersion(lam, cen, ref_nm=550.0, degree=1)
+    iv = np.stack([lam, lam + 25.0], axis=1)                 # nominal λ at the interval's edge
+    # The mean of 1/λ² over [lo, hi] is 1/(lo hi): the band's light lands, on average, there.
+    u_mean = 1.0 / (iv[:, 0] * iv[:, 1] * 1e-6)
+    exact = np.stack([10.0 - 8.0 * (u_mean - u[2]), 30.0 + 7.0 * (u_mean - u[2])])
+    got = band_mean_positions(fit, iv, samples=256)
+    np.testing.assert_allclose(got, exact, atol=1e-4)
+    assert np.all(np.abs(got - fit.positions(lam)) > 0.1)    # not the nominal wavelength's
