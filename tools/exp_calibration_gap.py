@@ -4,18 +4,32 @@ instruments.
 
 The calibrated model (per-band mask images and one shift per band) trails the simulator's exact
 operator. This experiment re-renders the `small` design, its calibration captures and its
-exact operator with the transport sampled differently, and prints calibrated and exact PSNR
-for 1, 3 and 5 views on the natural scene and the ColorChecker:
+exact operator with the transport sampled differently, and prints, for the natural scene and
+the ColorChecker, the PSNR reached with
+
+- ``calibrated``: the product's operator, from the calibration captures only;
+- ``exact``: the transport the frame was rendered with (:mod:`sim.oracle`).  With ``spp`` rays
+  per pixel and band it holds *which* texel and wavelength each of those rays met: the
+  simulator's Monte Carlo draw, fixed per pixel, which no capture can reveal;
+- ``exact*``: the same optics traced again with another random seed (same ``spp``, same
+  sampling): the instrument's physics without this frame's draw.  How far ``exact`` is above
+  ``exact*`` is what knowing the draw is worth;
+- ``cal+geom``: the calibrated mask images with the *simulator's* geometry, a per-band affine
+  map from the ground-truth grid into every view's box fitted to the transport
+  (:class:`recon.operators.BandWarpCassi`): what perfect geometric calibration would reach
+  with the shifted-mask model.
+
+Knobs, applied to every transport the run builds (the scene frame, the captures, the exact
+operators) by wrapping :func:`sim.transport.load_or_build` and the band intervals a lab reads
+from its filters' datasheet (:func:`sim.transport.band_intervals`): a what-if, not a setting
+of the product.  A temporary cache folder keeps the product's caches clean.
 
 - ``--sampling box`` (the instrument: wavelengths spread over each band's width) or ``centre``
-  (a what-if instrument seeing each band at its centre wavelength only: no smear within a band);
-- ``--spp N``: rays per pixel and band in the transport (4 by default everywhere).
+  (a what-if instrument seeing each band at one wavelength: no smear within a band);
+- ``--spp N``: rays per pixel and band (4 in the product);
+- ``--repeats N``: noisy frames averaged per calibration capture (0: noise-free captures).
 
-Both knobs are applied to every transport the run builds (the scene frame, the captures and the
-exact operator) by wrapping :func:`sim.transport.load_or_build`: a what-if, not a setting of
-the product. A separate cache folder per setting keeps the product's caches clean.
-
-Usage: python3 tools/exp_calibration_gap.py [--sampling box|centre] [--spp 4]
+Usage: python3 tools/exp_calibration_gap.py [--sampling box|centre] [--spp 4] [--views 1,3,5]
 """
 
 from __future__ import annotations
@@ -30,6 +44,10 @@ def main() -> None:
     ap.add_argument("--sampling", choices=("box", "centre"), default="box")
     ap.add_argument("--spp", type=int, default=4)
     ap.add_argument("--views", default="1,3,5")
+    ap.add_argument("--repeats", type=int, default=4,
+                    help="noisy frames averaged per calibration capture (0: noise-free)")
+    ap.add_argument("--trace-seed", type=int, default=1,
+                    help="random seed of the second exact operator's trace (the frame's is 0)")
     a = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="kaleidospec-gap-") as cache:
         os.environ["KALEIDOSPEC_CACHE"] = cache
@@ -39,32 +57,88 @@ def main() -> None:
 def run(a) -> None:
     import sim.transport as transport
 
-    build = transport.load_or_build
+    build, intervals = transport.load_or_build, transport.band_intervals
+
+    def what_if_intervals(design, wavelengths=None, sampling="box"):
+        return intervals(design, wavelengths, a.sampling if sampling == "box" else sampling)
 
     def what_if(*args, **kw):
-        # Band-wide transports take the what-if sampling; monochromatic ones (the line
-        # captures, already at one wavelength) keep theirs.
+        # Band-wide transports take the what-if sampling; monochromatic ones (the line and
+        # checkerboard captures, already at one wavelength) keep theirs.
         if kw.get("sampling", "box") == "box":
             kw["sampling"] = a.sampling
         kw["spp"] = a.spp
         return build(*args, **kw)
 
     transport.load_or_build = what_if
+    transport.band_intervals = what_if_intervals
 
     from kaleidospec import pipeline
     from sim.design import get_design
 
     d = pipeline.design_for_views(get_design("small"), 5)
-    cal = pipeline.calibrate(d, progress=False)
-    print(f"sampling {a.sampling}, {a.spp} rays per pixel and band")
-    print(f"{'scene':<13}{'views':>6}{'calibrated':>12}{'exact':>8}{'gap':>7}")
+    cal = pipeline.calibrate(d, progress=False, repeats=a.repeats)
+    counts = [int(v) for v in a.views.split(",")]
+    exact = {n: pipeline.oracle_operator(d, n) for n in counts}
+    retraced = {n: pipeline.oracle_operator(d, n, seed=a.trace_seed) for n in counts}
+    geometry = transport_geometry(d, cal)
+    print(f"sampling {a.sampling}, {a.spp} rays per pixel and band, {a.repeats} frames per "
+          f"calibration capture; exact* traced with seed {a.trace_seed}")
+    print(f"{'scene':<13}{'views':>6}{'calibrated':>12}{'cal+geom':>10}{'exact':>8}{'exact*':>8}"
+          f"{'exact-cal':>11}{'exact*-cal':>12}")
     for scene in ("natural", "colorchecker"):
         frame, meta, truth, _ = pipeline.render_scene(scene, d, seed=0)
-        for n in (int(v) for v in a.views.split(",")):
+        for n in counts:
             _, cal_info = pipeline.reconstruct_views(frame, meta, cal, n, truth=truth, design=d)
-            _, ora_info = pipeline.reconstruct_oracle(frame, meta, d, n, truth=truth)
-            c, o = cal_info["metrics"]["psnr"], ora_info["metrics"]["psnr"]
-            print(f"{scene:<13}{n:>6}{c:>12.2f}{o:>8.2f}{o - c:>+7.2f}")
+            _, geo = reconstruct_with_geometry(pipeline, frame, meta, cal, geometry, n, truth)
+            _, ora = pipeline.reconstruct_oracle(frame, meta, d, n, truth=truth, op=exact[n])
+            _, ret = pipeline.reconstruct_oracle(frame, meta, d, n, truth=truth, op=retraced[n])
+            c, g = cal_info["metrics"]["psnr"], geo["metrics"]["psnr"]
+            o, r = ora["metrics"]["psnr"], ret["metrics"]["psnr"]
+            print(f"{scene:<13}{n:>6}{c:>12.2f}{g:>10.2f}{o:>8.2f}{r:>8.2f}{o - c:>+11.2f}"
+                  f"{r - c:>+12.2f}", flush=True)
+
+
+def transport_geometry(design, cal):
+    """(K, L, 3, 3): per view and band, the affine map from the ground-truth grid (x, y) to the
+    view's box, least squares over every ray of the transport (texel -> sensor pixel, weighted
+    by throughput; the mask's cut of a pixel averages out over the field)."""
+    import numpy as np
+    from sim.transport import load_or_build
+
+    v = design.view_size_px
+    tr = load_or_build(design, (v, v), design.wavelengths)
+    ws = tr.sensor[1]
+    out = np.empty((len(cal.view_ids), len(tr.pix), 3, 3))
+    for l in range(len(tr.pix)):
+        py, px = np.divmod(tr.pix[l].astype(np.int64), ws)
+        ty, tx = np.divmod(tr.tex[l].astype(np.int64), v)
+        for k, (y0, x0, h, w) in enumerate(cal.view_boxes):
+            sel = (py >= y0) & (py < y0 + h) & (px >= x0) & (px < x0 + w) & (tr.w[l] > 0)
+            a = np.stack([tx[sel], ty[sel], np.ones(int(sel.sum()))], axis=1).astype(np.float64)
+            b = np.stack([px[sel] - x0, py[sel] - y0], axis=1).astype(np.float64)
+            sw = np.sqrt(tr.w[l][sel].astype(np.float64))[:, None]
+            sol = np.linalg.lstsq(a * sw, b * sw, rcond=None)[0]        # (3, 2)
+            out[k, l] = np.vstack([sol.T, [0.0, 0.0, 1.0]])
+    return out
+
+
+def reconstruct_with_geometry(pipeline, frame, meta, cal, geometry, n, truth):
+    """The calibrated mask images and gains with ``geometry`` (:func:`transport_geometry`), on
+    the ground-truth grid."""
+    import numpy as np
+    from recon.calibration import measurements
+    from recon.operators import BandWarpCassi, HomographyWarp
+
+    ids = pipeline.VIEW_ORDER[:n]
+    idx = [cal.view_ids.index(i) for i in ids]
+    hv, wm = cal.mask_images.shape[2:]
+    grid = truth.shape[:2]
+    masks = cal.mask_images[idx] / cal.gains.astype(np.float32)[None, :, None, None]
+    warps = [[HomographyWarp(m, grid, (hv, wm)) for m in geometry[i]] for i in idx]
+    g = measurements(frame, cal, ids, metadata=meta) / np.float32(meta["radiance_scale"])
+    return pipeline.solve_views(BandWarpCassi(masks, warps), g, n, truth=truth,
+                                wavelengths=cal.wavelengths)
 
 
 if __name__ == "__main__":

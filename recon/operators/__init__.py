@@ -3,6 +3,7 @@
 Working layout is band-major: cubes are (L, H, W), measurements (K, Hv, Wm), float32.
 """
 
+from recon.operators.bandwarp import BandWarpCassi
 from recon.operators.base import LinearOperator, MatrixOperator, ScaledOperator, dot_test
 from recon.operators.calibrated import CalibratedCassi
 from recon.operators.cassi import CassiOperator, View, kaleidoscope_cassi, standard_cassi
@@ -14,6 +15,7 @@ from recon.operators.warp import Flip, HomographyWarp, Identity, Translate, Warp
 __all__ = [
     "LinearOperator", "MatrixOperator", "ScaledOperator", "dot_test",
     "View", "CassiOperator", "standard_cassi", "kaleidoscope_cassi", "CalibratedCassi",
+    "BandWarpCassi",
     "SmearedCassi", "taps_from_positions",
     "Dispersion", "MaskModulation",
     "Warp", "Identity", "Flip", "Translate", "HomographyWarp", "WarpOperator",
