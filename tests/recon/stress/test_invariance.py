@@ -1,4 +1,4 @@
-"""Invariances of the reconstruction, every solver.
+r"""Invariances of the reconstruction, every solver.
 
 - Scale: the objective :math:`\tfrac12\|sg - Hsf\|^2 + s\tau\,\mathrm{TV}(sf)` is :math:`s^2`
   times the original, TV being 1-homogeneous, so ``solve(s·g, tau=s·tau) = s·solve(g, tau)``

@@ -1,4 +1,4 @@
-"""Properties of the TV proximal map over random shapes (hypothesis), complementing
+r"""Properties of the TV proximal map over random shapes (hypothesis), complementing
 ``tests/recon/prox``: non-expansiveness, fixed constants, and the symmetries of
 :math:`\mathrm{prox}_{\lambda\mathrm{TV}}`.
 
