@@ -25,7 +25,7 @@ import numpy as np
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
 from recon.operators.dispersion import work_dtype
-from recon.operators.mask import as_mask
+from recon.operators.mask import InPrecision, as_mask
 from recon.operators.warp import HomographyWarp
 
 
@@ -69,11 +69,12 @@ class BandWarpCassi(LinearOperator):
                                      f"{in_shape}")
         self.warps = rows
         self.n_views, self.n_bands = k, n_bands
+        self._masks = InPrecision(self.mask_images)
         super().__init__((n_bands,) + tuple(in_shape), (k, hv, wm))
 
     def _forward(self, x):
         dt = work_dtype(x)
-        c = self.mask_images.astype(dt, copy=False)
+        c = self._masks(dt)
         out = np.zeros(self.oshape, dtype=dt)
         for k, row in enumerate(self.warps):
             for l, w in enumerate(row):
@@ -82,7 +83,7 @@ class BandWarpCassi(LinearOperator):
 
     def _adjoint(self, y):
         dt = work_dtype(y)
-        c = self.mask_images.astype(dt, copy=False)
+        c = self._masks(dt)
         out = np.zeros(self.ishape, dtype=dt)
         for k, row in enumerate(self.warps):
             yk = y[k].astype(dt, copy=False)

@@ -23,8 +23,8 @@ import numpy as np
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
 from recon.operators.dispersion import as_offsets, shift_row_norms, split, work_dtype
-from recon.operators.mask import as_mask
-from recon.operators.warp import as_warp
+from recon.operators.mask import InPrecision, as_mask
+from recon.operators.warp import as_warps, cube_shape_of
 
 
 class CalibratedCassi(LinearOperator):
@@ -69,24 +69,8 @@ class CalibratedCassi(LinearOperator):
         if np.min(table) < 0:
             raise InputError(f"calibrated offsets are absolute sensor columns and must be >= 0, "
                              f"got min {np.min(table):g}")
-        if warps is None:
-            warps = [None] * k
-        warps = [as_warp(w, name=f"warps[{i}]") for i, w in enumerate(list(warps))]
-        if len(warps) != k:
-            raise InputError(f"warps has {len(warps)} entries, mask_images has {k} views")
-        if cube_shape is None:
-            known = [w.in_shape for w in warps if w.in_shape is not None]
-            if known:
-                cube_shape = (n_bands,) + tuple(known[0])
-            else:
-                cube_shape = (n_bands, hv, wm - int(np.ceil(np.max(table))))
-        try:
-            cs = tuple(int(s) for s in cube_shape)
-        except (TypeError, ValueError):
-            raise InputError(f"cube_shape must be (L, H, W), got {cube_shape!r}") from None
-        if len(cs) != 3 or min(cs) < 1 or cs[0] != n_bands:
-            raise InputError(f"cube_shape must be (L={n_bands}, H, W) with positive sizes, "
-                             f"got {cube_shape!r}")
+        warps = as_warps(warps, k, "mask_images")
+        cs = cube_shape_of(cube_shape, n_bands, warps, (hv, wm - int(np.ceil(np.max(table)))))
         bound = []
         for i, w in enumerate(warps):
             out_shape = w.out_shape if w.out_shape is not None else cs[1:]
@@ -104,16 +88,9 @@ class CalibratedCassi(LinearOperator):
                     raise InputError(f"view {i} band {l}: offset {table[i, l]:g} + view width {wv}"
                                      f" does not fit in the mask image width {wm}")
         self.n_views, self.n_bands = k, n_bands
-        self._c64 = None
+        self._cmasks = InPrecision(self.mask_images)
         self._row_norms = None
         super().__init__(cs, (k, hv, wm))
-
-    def _cmasks(self, dt):
-        if dt == np.float32:
-            return self.mask_images
-        if self._c64 is None:
-            self._c64 = self.mask_images.astype(np.float64)
-        return self._c64
 
     def _forward(self, x):
         dt = work_dtype(x)

@@ -37,8 +37,8 @@ from recon.operators.base import LinearOperator
 from recon.operators.dispersion import (
     as_offsets, shift_row_norms, snap, span, split, work_dtype,
 )
-from recon.operators.mask import as_mask
-from recon.operators.warp import Flip, Identity, Warp, as_warp
+from recon.operators.mask import InPrecision, as_mask
+from recon.operators.warp import Flip, Identity, Warp, as_warp, cube_shape_of
 
 #: Ideal geometric map of each kaleidoscope view id (centre, left, right, top, bottom, corners):
 #: the flip axes of the mirror image seen in that view.
@@ -113,7 +113,7 @@ class CassiOperator(LinearOperator):
                 raise InputError(f"view {i} mask shape {v.mask.shape} != view 0 mask shape {vshape}")
             if v.offsets.size != n_bands:
                 raise InputError(f"view {i} has {v.offsets.size} offsets, view 0 has {n_bands}")
-        cube_shape = _cube_shape(cube_shape, n_bands, vshape, views)
+        cube_shape = cube_shape_of(cube_shape, n_bands, [v.warp for v in views], vshape)
         hw = cube_shape[1:]
         self.views = [View(v.mask, v.offsets, v.warp.bind(hw, vshape)) for v in views]
         table = np.stack([v.offsets for v in self.views])
@@ -123,17 +123,9 @@ class CassiOperator(LinearOperator):
         self.n_views = len(self.views)
         self.n_bands = n_bands
         self._plan = [_view_plan(v, row, extra) for v, row in zip(self.views, self.offsets)]
-        self._masks64 = None
+        self._masks = InPrecision([p.mask for p in self._plan])
         self._row_norms = None
         super().__init__(cube_shape, (self.n_views, vshape[0], vshape[1] + extra))
-
-    # -- helpers ---------------------------------------------------------------------------
-    def _masks(self, dt):
-        if dt == np.float32:
-            return [p.mask for p in self._plan]
-        if self._masks64 is None:
-            self._masks64 = [p.mask.astype(np.float64) for p in self._plan]
-        return self._masks64
 
     # -- operator --------------------------------------------------------------------------
     # How the hot loops are arranged (all exact; only the order of operations changes):
@@ -455,21 +447,3 @@ def _n_bands(n_bands) -> int:
     if n < 1 or n != n_bands:
         raise InputError(f"n_bands must be a positive integer, got {n_bands!r}")
     return n
-
-
-def _cube_shape(cube_shape, n_bands, vshape, views) -> tuple[int, int, int]:
-    if cube_shape is None:
-        for v in views:
-            if v.warp.in_shape is not None:
-                return (n_bands,) + tuple(v.warp.in_shape)
-        return (n_bands,) + tuple(vshape)
-    try:
-        cs = tuple(int(s) for s in cube_shape)
-    except (TypeError, ValueError):
-        raise InputError(f"cube_shape must be (L, H, W), got {cube_shape!r}") from None
-    if len(cs) != 3 or min(cs) < 1:
-        raise InputError(f"cube_shape must be three positive ints (L, H, W), got {cube_shape!r}")
-    if cs[0] != n_bands:
-        raise InputError(f"cube_shape {cs} is band-major (L, H, W) but the views have "
-                         f"{n_bands} offsets (bands)")
-    return cs

@@ -35,6 +35,33 @@ def as_mask(mask, shape: tuple[int, ...] | None = None, name: str = "mask", ndim
     return m
 
 
+class InPrecision:
+    """Float32 masks, and their float64 copies made on first use and then kept.
+
+    The operators compute in their input's precision (:func:`~.dispersion.work_dtype`):
+    float32 in the solvers, float64 in dot tests and stress tests.  Masks are stored in
+    float32; a float64 input reads the kept copies instead of converting the masks per call.
+
+    Parameters
+    ----------
+    masks : ndarray or list of ndarray
+        Float32.
+    """
+
+    def __init__(self, masks):
+        self._f32 = masks
+        self._f64 = None
+
+    def __call__(self, dtype):
+        """The masks in ``dtype`` (float32 or float64)."""
+        if np.dtype(dtype) == np.float32:
+            return self._f32
+        if self._f64 is None:
+            self._f64 = ([m.astype(np.float64) for m in self._f32]
+                         if isinstance(self._f32, list) else self._f32.astype(np.float64))
+        return self._f64
+
+
 class MaskModulation(LinearOperator):
     r"""Multiply every band of a band-major cube by a mask: :math:`(L,H,W)\to(L,H,W)`.
 

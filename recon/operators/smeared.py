@@ -38,8 +38,8 @@ import numpy as np
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
 from recon.operators.dispersion import SNAP_TOL, work_dtype
-from recon.operators.mask import as_mask
-from recon.operators.warp import as_warp
+from recon.operators.mask import InPrecision, as_mask
+from recon.operators.warp import as_warps, cube_shape_of
 
 #: Kernel weights at or below this are dropped (the zero padding of a (K, L, T) table).
 WEIGHT_TOL = 1e-9
@@ -170,21 +170,8 @@ class SmearedCassi(LinearOperator):
         if wm < wv + last:
             raise InputError(f"a kernel reaches column {last} + view width {wv} > measurement "
                              f"width {wm}")
-        if warps is None:
-            warps = [None] * k
-        warps = [as_warp(x, name=f"warps[{i}]") for i, x in enumerate(list(warps))]
-        if len(warps) != k:
-            raise InputError(f"warps has {len(warps)} entries, masks has {k} views")
-        if cube_shape is None:
-            known = [x.in_shape for x in warps if x.in_shape is not None]
-            cube_shape = (n_bands,) + (tuple(known[0]) if known else (hv, wv))
-        try:
-            cs = tuple(int(v) for v in cube_shape)
-        except (TypeError, ValueError):
-            raise InputError(f"cube_shape must be (L, H, W), got {cube_shape!r}") from None
-        if len(cs) != 3 or min(cs) < 1 or cs[0] != n_bands:
-            raise InputError(f"cube_shape must be (L={n_bands}, H, W) with positive sizes, "
-                             f"got {cube_shape!r}")
+        warps = as_warps(warps, k, "masks")
+        cs = cube_shape_of(cube_shape, n_bands, warps, (hv, wv))
         bound = []
         for i, x in enumerate(warps):
             out_shape = x.out_shape if x.out_shape is not None else (hv, wv)
@@ -194,16 +181,9 @@ class SmearedCassi(LinearOperator):
             bound.append(x.bind(cs[1:], (hv, wv)))
         self.warps = bound
         self.n_views, self.n_bands = k, n_bands
-        self._m64 = None
+        self._masks = InPrecision(self.masks)
         self._row_norms = None
         super().__init__(cs, (k, hv, wm))
-
-    def _masks(self, dt):
-        if dt == np.float32:
-            return self.masks
-        if self._m64 is None:
-            self._m64 = self.masks.astype(np.float64)
-        return self._m64
 
     def _forward(self, x):
         dt = work_dtype(x)

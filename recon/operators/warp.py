@@ -284,6 +284,49 @@ def as_warp(warp, name: str = "warp") -> Warp:
     return warp
 
 
+def as_warps(warps, n_views: int, what: str = "the masks") -> list[Warp]:
+    """One :class:`Warp` per view: ``None`` → identities, each entry through :func:`as_warp`.
+
+    Raises
+    ------
+    InputError
+        An entry that is not a warp, or not exactly ``n_views`` of them (``what`` names the
+        array that fixes the number of views, for the message).
+    """
+    if warps is None:
+        warps = [None] * n_views
+    out = [as_warp(w, name=f"warps[{i}]") for i, w in enumerate(list(warps))]
+    if len(out) != n_views:
+        raise InputError(f"warps has {len(out)} entries, {what} has {n_views} views")
+    return out
+
+
+def cube_shape_of(cube_shape, n_bands: int, warps, default_hw) -> tuple[int, int, int]:
+    """The band-major cube shape ``(L, H, W)`` of a multi-view operator.
+
+    ``cube_shape`` when given (checked), else ``(L,)`` + the input shape of the first warp
+    that has one, else ``(L,) + default_hw``.
+
+    Raises
+    ------
+    InputError
+        Not three positive integers, or not ``n_bands`` bands.
+    """
+    if cube_shape is None:
+        known = [w.in_shape for w in warps if w.in_shape is not None]
+        return (int(n_bands),) + tuple(int(s) for s in (known[0] if known else default_hw))
+    try:
+        cs = tuple(int(s) for s in cube_shape)
+    except (TypeError, ValueError):
+        raise InputError(f"cube_shape must be (L, H, W), got {cube_shape!r}") from None
+    if len(cs) != 3 or min(cs) < 1:
+        raise InputError(f"cube_shape must be three positive ints (L, H, W), got {cube_shape!r}")
+    if cs[0] != n_bands:
+        raise InputError(f"cube_shape {cs} is band-major (L, H, W) but the operator has "
+                         f"{n_bands} bands")
+    return cs
+
+
 def _bilinear_matrix(inv: np.ndarray, in_shape, out_shape) -> sp.csr_matrix:
     """CSR matrix (Hv*Wv, H*W), float32, of bilinear sampling at ``inv @ (x, y, 1)``."""
     h, w = in_shape
