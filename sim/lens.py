@@ -45,14 +45,11 @@ def register():
         """Ideal thin lens as a delta transmission (see the module docstring)."""
 
         def __init__(self, props):
-            mi.BSDF.__init__(self, props)
+            super().__init__(props)
             self.f = props.get("focal_length", 50.0)
             c = props.get("center", [0.0, 0.0, 0.0])
             self.center = mi.ScalarPoint3f(float(c[0]), float(c[1]), float(c[2]))
             self.transmittance = props.get("transmittance", 1.0)
-            self.m_flags = (mi.BSDFFlags.DeltaTransmission | mi.BSDFFlags.FrontSide
-                            | mi.BSDFFlags.BackSide)
-            self.m_components = [self.m_flags]
 
         def sample(self, ctx, si, sample1, sample2, active=True):
             p = si.sh_frame.to_local(si.p - mi.Point3f(self.center))

@@ -72,13 +72,10 @@ def register():
         """Binary chrome-on-quartz mask: delta pass-through weighted by T_q or 0."""
 
         def __init__(self, props):
-            mi.BSDF.__init__(self, props)
+            super().__init__(props)
             self.geom = None
             self.open = mi.Float(0.0)
             self.center = [0.0, 0.0]
-            self.m_flags = (mi.BSDFFlags.DeltaTransmission | mi.BSDFFlags.FrontSide
-                            | mi.BSDFFlags.BackSide)
-            self.m_components = [self.m_flags]
 
         def set_pattern(self, pattern: np.ndarray, geom: dict, center_xy):
             self.open = mi.Float(np.ascontiguousarray(pattern, dtype=np.float32).ravel())

@@ -44,14 +44,11 @@ def register():
         """Smooth dielectric with a Sellmeier index at the hero wavelength (delta transmission)."""
 
         def __init__(self, props):
-            mi.BSDF.__init__(self, props)
+            super().__init__(props)
             self.B = [float(props.get(f"B{i}", 0.0)) for i in (1, 2, 3)]
             self.C = [float(props.get(f"C{i}", 0.0)) for i in (1, 2, 3)]
             self.hero = bool(props.get("hero", True))
             self.fresnel = bool(props.get("fresnel", True))
-            self.m_flags = (mi.BSDFFlags.DeltaTransmission | mi.BSDFFlags.FrontSide
-                            | mi.BSDFFlags.BackSide)
-            self.m_components = [self.m_flags]
 
         def index(self, wavelength_nm):
             lam2 = dr.square(wavelength_nm * 1e-3)

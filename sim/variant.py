@@ -98,14 +98,21 @@ def delta_bsdf_base():
     """Base class of the simulator's purely specular BSDF plugins (lens, mask, prism).
 
     A delta interaction has no density: ``eval`` and ``pdf`` are zero for every pair of
-    directions, and all the work is in ``sample``, which subclasses implement.  One class per
-    Mitsuba variant, since ``mi.BSDF`` differs between variants.
+    directions, and all the work is in ``sample``, which subclasses implement.  All of them
+    transmit through either side (one delta-transmission component, front and back), set here.
+    One class per Mitsuba variant, since ``mi.BSDF`` differs between variants.
     """
     mi = ensure_variant()
     base = _delta_bases.get(mi.variant())
     if base is None:
 
         class DeltaBSDF(mi.BSDF):
+            def __init__(self, props):
+                mi.BSDF.__init__(self, props)
+                self.m_flags = (mi.BSDFFlags.DeltaTransmission | mi.BSDFFlags.FrontSide
+                                | mi.BSDFFlags.BackSide)
+                self.m_components = [self.m_flags]
+
             def eval(self, ctx, si, wo, active=True):
                 return mi.Spectrum(0.0)
 
