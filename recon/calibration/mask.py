@@ -132,14 +132,7 @@ def mask_images(white_captures, view_boxes, dark=None, airy_radius=None, rl_iter
     InputError
         Bad shapes, boxes of different sizes or outside the frame, non-positive radii.
     """
-    views = view_stack(white_captures, view_boxes, dark, "white captures")   # (K, L, h, w)
-    n_bands = views.shape[1]
-    views = np.maximum(views, 0.0)
-    if airy_radius is not None:
-        radii = np.broadcast_to(np.asarray(airy_radius, dtype=np.float64), (n_bands,))
-        if not np.all(radii > 0):
-            raise InputError(f"Airy radii must be positive, got {radii}")
-        views = deconvolve(views, radii, rl_iterations)
+    views = white_views(white_captures, view_boxes, dark, airy_radius, rl_iterations)
     levels = white_levels(views, percentile=percentile)
     out = views / levels[None, :, None, None]
     return np.clip(out, 0.0, 1.0).astype(np.float32)
@@ -197,14 +190,8 @@ def view_masks(white_captures, view_boxes, tap_start, tap_weights, view_width: i
     """
     from recon.operators.smeared import smear_matrix
 
-    views = view_stack(white_captures, view_boxes, dark, "white captures")   # (K, L, h, w)
+    views = white_views(white_captures, view_boxes, dark, airy_radius, rl_iterations)
     k_, n_bands, hv, wm = views.shape
-    views = np.maximum(views, 0.0)
-    if airy_radius is not None:
-        radii = np.broadcast_to(np.asarray(airy_radius, dtype=np.float64), (n_bands,))
-        if not np.all(radii > 0):
-            raise InputError(f"Airy radii must be positive, got {radii}")
-        views = deconvolve(views, radii, rl_iterations)
     start = np.asarray(tap_start)
     weights = np.asarray(tap_weights, dtype=np.float64)
     wv = int(view_width)
@@ -246,6 +233,19 @@ def view_masks(white_captures, view_boxes, tap_start, tap_weights, view_width: i
             masks /= q
             alpha *= q
     return masks.astype(np.float32), levels * alpha
+
+
+def white_views(white_captures, view_boxes, dark=None, airy_radius=None,
+                rl_iterations: int = 30) -> np.ndarray:
+    """(K, L, h, w) non-negative view crops of the per-band whites (:func:`view_stack`),
+    deconvolved with Richardson–Lucy (:func:`deconvolve`) when ``airy_radius`` is given."""
+    views = np.maximum(view_stack(white_captures, view_boxes, dark, "white captures"), 0.0)
+    if airy_radius is not None:
+        radii = np.broadcast_to(np.asarray(airy_radius, dtype=np.float64), (views.shape[1],))
+        if not np.all(radii > 0):
+            raise InputError(f"Airy radii must be positive, got {radii}")
+        views = deconvolve(views, radii, rl_iterations)
+    return views
 
 
 def _box_lsq(n: np.ndarray, b: np.ndarray, upper: float, iterations: int) -> np.ndarray:
