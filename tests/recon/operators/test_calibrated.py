@@ -1,38 +1,16 @@
 """CalibratedCassi: per-band sensor masks C_kl, g_k = sum_l C_kl * S_kl(W_k f_l)."""
 
-import math
-
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
+from dense import flip_matrix, shift_matrix
 from recon.errors import InputError
 from recon.operators import (
     CalibratedCassi, Flip, Translate, dot_test, kaleidoscope_cassi,
 )
 
 SETTINGS = settings(max_examples=30, deadline=None, derandomize=True, database=None)
-
-
-def shift_matrix(phi, w_in, w_out):
-    a = math.floor(phi)
-    t = phi - a
-    s = np.zeros((w_out, w_in))
-    for u in range(w_in):
-        s[u + a, u] += 1.0 - t
-        if t > 0:
-            s[u + a + 1, u] += t
-    return s
-
-
-def flip_matrix(shape, axes):
-    h, w = shape
-    idx = np.arange(h * w).reshape(h, w)
-    if 0 in axes:
-        idx = idx[::-1]
-    if 1 in axes:
-        idx = idx[:, ::-1]
-    return np.eye(h * w)[idx.ravel()]
 
 
 def dense_calibrated(cmasks, offsets, warp_mats, shape):

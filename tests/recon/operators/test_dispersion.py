@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
+from dense import shift_matrix
 from recon.errors import InputError
 from recon.operators import Dispersion, dot_test
 
@@ -13,18 +14,6 @@ SETTINGS = settings(max_examples=30, deadline=None, derandomize=True, database=N
 
 offset = st.one_of(st.integers(-5, 5).map(float),
                    st.floats(-5.0, 5.0, allow_nan=False).map(lambda v: round(v, 3)))
-
-
-def shift_matrix(phi: float, w_in: int, w_out: int) -> np.ndarray:
-    """Row-wise linear-interpolation shift: out[x] = (1-t) v[x-a] + t v[x-a-1]."""
-    a = math.floor(phi)
-    t = phi - a
-    s = np.zeros((w_out, w_in))
-    for u in range(w_in):
-        s[u + a, u] += 1.0 - t
-        if t > 0:
-            s[u + a + 1, u] += t
-    return s
 
 
 def dense_dispersion(offsets, h, w):

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
+from dense import flip_matrix
 from recon.errors import InputError
 from recon.operators import (
     CalibratedCassi, Flip, SmearedCassi, Translate, dot_test, kaleidoscope_cassi,
@@ -12,16 +13,6 @@ from recon.operators.smeared import smear_matrix, taps_from_positions
 from recon.operators.warp import HomographyWarp
 
 SETTINGS = settings(max_examples=30, deadline=None, derandomize=True, database=None)
-
-
-def flip_matrix(shape, axes):
-    h, w = shape
-    idx = np.arange(h * w).reshape(h, w)
-    if 0 in axes:
-        idx = idx[::-1]
-    if 1 in axes:
-        idx = idx[:, ::-1]
-    return np.eye(h * w)[idx.ravel()]
 
 
 def dense_smeared(masks, start, weights, warp_mats, wm):

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
+from dense import flip_matrix
 from recon.errors import InputError
 from recon.operators import (
     Flip, HomographyWarp, Identity, Translate, WarpOperator, dot_test,
@@ -34,16 +35,6 @@ def dense_homography(matrix, in_shape, out_shape):
                     if 0 <= yy < h and 0 <= xx < w and wy * wx > 1e-9:
                         a[yv * wv + xv, yy * w + xx] += wy * wx
     return a
-
-
-def flip_matrix(shape, axes):
-    h, w = shape
-    idx = np.arange(h * w).reshape(h, w)
-    if 0 in axes:
-        idx = idx[::-1]
-    if 1 in axes:
-        idx = idx[:, ::-1]
-    return np.eye(h * w)[idx.ravel()]
 
 
 def check_operator(op, dense, rng):
