@@ -1,7 +1,6 @@
 """``kaleidospec run`` end to end on a reduced small design, and every bad input."""
 
 import json
-import os
 
 import numpy as np
 import pytest
@@ -12,14 +11,8 @@ SET = ["--set", "band_step_nm=50"]
 
 
 @pytest.fixture(scope="module", autouse=True)
-def cache(tmp_path_factory):
-    old = os.environ.get("KALEIDOSPEC_CACHE")
-    os.environ["KALEIDOSPEC_CACHE"] = str(tmp_path_factory.getbasetemp() / "kaleidospec-cache")
-    yield
-    if old is None:
-        os.environ.pop("KALEIDOSPEC_CACHE", None)
-    else:
-        os.environ["KALEIDOSPEC_CACHE"] = old
+def cache(shared_cache):
+    return shared_cache
 
 
 def cli(argv, capsys):

@@ -1,7 +1,5 @@
 """The pipeline: calibration from rendered captures (cached), reconstruction, bad input."""
 
-import os
-
 import numpy as np
 import pytest
 
@@ -12,15 +10,8 @@ OVR = {"band_step_nm": 50.0}
 
 
 @pytest.fixture(scope="module", autouse=True)
-def cache(tmp_path_factory):
-    old = os.environ.get("KALEIDOSPEC_CACHE")
-    path = tmp_path_factory.getbasetemp() / "kaleidospec-cache"
-    os.environ["KALEIDOSPEC_CACHE"] = str(path)
-    yield path
-    if old is None:
-        os.environ.pop("KALEIDOSPEC_CACHE", None)
-    else:
-        os.environ["KALEIDOSPEC_CACHE"] = old
+def cache(shared_cache):
+    return shared_cache
 
 
 @pytest.fixture(scope="module")

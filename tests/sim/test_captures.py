@@ -1,7 +1,5 @@
 """Calibration captures: the checkerboard target, averaging of repeats, the capture set."""
 
-import os
-
 import numpy as np
 import pytest
 
@@ -13,14 +11,8 @@ OVR = {"band_step_nm": 50.0}
 
 
 @pytest.fixture(scope="module", autouse=True)
-def cache(tmp_path_factory):
-    old = os.environ.get("KALEIDOSPEC_CACHE")
-    os.environ["KALEIDOSPEC_CACHE"] = str(tmp_path_factory.getbasetemp() / "kaleidospec-cache")
-    yield
-    if old is None:
-        os.environ.pop("KALEIDOSPEC_CACHE", None)
-    else:
-        os.environ["KALEIDOSPEC_CACHE"] = old
+def cache(shared_cache):
+    return shared_cache
 
 
 def _board_extent(cube):
