@@ -392,13 +392,23 @@ def _plateau(profile: np.ndarray) -> float:
     return float(np.median(p[p.size // 2:])) if p.size else 0.0
 
 
-def _check_disjoint(boxes: np.ndarray, ids) -> None:
+def overlapping_pair(boxes) -> tuple[int, int] | None:
+    """The first pair ``(i, j)``, ``i < j``, of ``y0, x0, h, w`` boxes that overlap, or None."""
     for i in range(len(boxes)):
         for j in range(i + 1, len(boxes)):
             a, b = boxes[i], boxes[j]
             if (a[0] < b[0] + b[2] and b[0] < a[0] + a[2]
                     and a[1] < b[1] + b[3] and b[1] < a[1] + a[3]):
-                raise InputError(f"boxes of views {ids[i]} and {ids[j]} overlap: {a} and {b}")
+                return i, j
+    return None
+
+
+def _check_disjoint(boxes: np.ndarray, ids) -> None:
+    pair = overlapping_pair(boxes)
+    if pair is not None:
+        i, j = pair
+        raise InputError(f"boxes of views {ids[i]} and {ids[j]} overlap: {boxes[i]} and "
+                         f"{boxes[j]}")
 
 
 def check_boxes(view_boxes, frame_shape=None, n_views=None) -> np.ndarray:

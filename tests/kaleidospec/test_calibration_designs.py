@@ -5,6 +5,8 @@ the traditional full-frame CASSI (``kaleidoscope=False``, one view) and a wide d
 import numpy as np
 import pytest
 
+from recon.calibration.views import overlapping_pair
+
 pytestmark = pytest.mark.mitsuba
 
 #: ``small`` on a 300×240 sensor of 40 µm pixels (2×2-pixel mask cells): 78 px views.
@@ -26,16 +28,6 @@ def cache(tmp_path_factory):
         yield
 
 
-def _disjoint(boxes):
-    for i in range(len(boxes)):
-        for j in range(i + 1, len(boxes)):
-            a, b = boxes[i], boxes[j]
-            if (a[0] < b[0] + b[2] and b[0] < a[0] + a[2]
-                    and a[1] < b[1] + b[3] and b[1] < a[1] + a[3]):
-                return False
-    return True
-
-
 def _check(design):
     from kaleidospec import pipeline
 
@@ -44,7 +36,7 @@ def _check(design):
     assert tuple(cal.view_ids) == ids
     boxes = np.asarray(cal.view_boxes)
     hs, ws = design.sensor_height_px, design.sensor_width_px
-    assert _disjoint(boxes)
+    assert overlapping_pair(boxes) is None
     assert np.all(boxes[:, :2] >= 0)
     assert np.all(boxes[:, 0] + boxes[:, 2] <= hs) and np.all(boxes[:, 1] + boxes[:, 3] <= ws)
     # Each box holds its view's light: the design's bound at the pass band's edges, up to

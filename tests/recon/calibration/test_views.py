@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from recon.calibration.views import VIEW_GRID, check_boxes, find_view_boxes
+from recon.calibration.views import VIEW_GRID, check_boxes, find_view_boxes, overlapping_pair
 from recon.errors import InputError
 
 
@@ -153,23 +153,13 @@ def _plus_stack(rng, hv=60, wc=50, span=36, gap_x=4, gap_y=2, x0=8, y0=3, shape=
     return np.stack(stack).astype(np.float32), boxes
 
 
-def _disjoint(boxes):
-    for i in range(len(boxes)):
-        for j in range(i + 1, len(boxes)):
-            a, b = boxes[i], boxes[j]
-            if (a[0] < b[0] + b[2] and b[0] < a[0] + a[2]
-                    and a[1] < b[1] + b[3] and b[1] < a[1] + a[3]):
-                return False
-    return True
-
-
 def test_wide_dispersion_plus_layout_follows_each_view():
     # Only the middle row and column are lit, the dispersion span (36 px) is 9× the column
     # gap: the columns' global profiles are uneven, the boxes must still hold every view.
     rng = np.random.default_rng(6)
     stack, truth = _plus_stack(rng)
     boxes = find_view_boxes(stack, (0, 1, 2, 3, 4), margin_x=2)
-    assert _disjoint(boxes)
+    assert overlapping_pair(boxes) is None
     assert np.all(boxes[:, 2:] == boxes[0, 2:])
     for b, t in zip(boxes, truth):
         assert b[0] <= t[0] and b[0] + b[2] >= t[0] + t[2]
@@ -182,7 +172,7 @@ def test_view_at_the_sensor_edge_is_clipped_and_a_cut_view_is_named():
     # View 1 starts at column 0: its box may not grow to the left, it is shifted instead.
     stack, truth = _plus_stack(rng, x0=0)
     boxes = find_view_boxes(stack, (0, 1, 2), margin_x=3)
-    assert boxes[1, 1] == 0 and _disjoint(boxes)
+    assert boxes[1, 1] == 0 and overlapping_pair(boxes) is None
     assert boxes[1, 1] + boxes[1, 3] >= truth[1, 1] + truth[1, 3]
     # A view cut by the sensor's left edge cannot be used: named in the error.
     cut = stack[:, :, 30:]
@@ -190,7 +180,7 @@ def test_view_at_the_sensor_edge_is_clipped_and_a_cut_view_is_named():
         find_view_boxes(cut, (0, 1, 2))
     # ... but the views that are whole still can.
     whole = find_view_boxes(cut, (0, 2, 3))
-    assert _disjoint(whole) and np.all(whole[:, 3] >= truth[0, 3])
+    assert overlapping_pair(whole) is None and np.all(whole[:, 3] >= truth[0, 3])
 
 
 def test_single_full_frame_view_and_a_partial_row():
