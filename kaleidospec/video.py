@@ -49,6 +49,7 @@ from pathlib import Path
 import numpy as np
 
 from recon.errors import InputError
+from recon.io.arrays import read_json_object
 
 __all__ = [
     "FrameRenderer", "VideoLayout", "render_sequence", "plan_segments", "reconstruct_segment",
@@ -114,12 +115,6 @@ def _write_json(path: Path, obj) -> None:
 
     write_text(path, json.dumps(obj, indent=2, sort_keys=True, allow_nan=False) + "\n")
 
-
-def _read_json(path: Path) -> dict:
-    try:
-        return json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise InputError(f"{path}: cannot read ({err})") from None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -709,7 +704,7 @@ def write_summary(out_dir, n_frames: int) -> dict:
     from recon.io.atomic import write_text
 
     lay = VideoLayout(out_dir)
-    frames = [_read_json(lay.metrics(i)) for i in range(n_frames) if lay.metrics(i).exists()]
+    frames = [read_json_object(lay.metrics(i)) for i in range(n_frames) if lay.metrics(i).exists()]
     summary: dict = {"frames": len(frames)}
     for k in ("psnr", "psnr_bandwise", "ssim", "sam_deg", "delta_e2000",
               "sector_delta_e2000_mean", "solve_seconds", "iters"):
@@ -789,7 +784,7 @@ def write_video(out_dir, n_frames: int, fps: float, wavelengths, *, fmt: str = "
 def _check_manifest(lay: VideoLayout, config: dict) -> dict | None:
     if not lay.manifest.exists():
         return None
-    old = _read_json(lay.manifest)
+    old = read_json_object(lay.manifest)
     prev = old.get("config", {})
     diff = sorted(k for k in set(prev) | set(config) if prev.get(k) != config.get(k))
     if diff:

@@ -41,6 +41,7 @@ from recon.calibration.dispersion import normalise_offsets, normalise_offsets_ph
 from recon.calibration.geometry import to_view_coordinates
 from recon.calibration.views import check_boxes, check_view_ids
 from recon.errors import InputError
+from recon.io.arrays import read_json_object
 
 FORMAT = "kaleidospec-calibration"
 VERSION = 1
@@ -400,12 +401,7 @@ def load_calibration(path) -> Calibration:
     for p in (npz, side):
         if not p.is_file():
             raise InputError(f"{p}: calibration file not found")
-    try:
-        meta = json.loads(side.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"{side}: not a readable JSON sidecar: {exc}") from None
-    if not isinstance(meta, dict):
-        raise InputError(f"{side}: the sidecar must hold a JSON object")
+    meta = read_json_object(side)
     if meta.get("format", FORMAT) != FORMAT:
         raise InputError(f"{side}: not a calibration sidecar (format {meta.get('format')!r})")
     for name in JSON_FIELDS:

@@ -57,6 +57,26 @@ def check_file(path: PathLike) -> Path:
     return p
 
 
+def read_json_object(path: PathLike) -> dict:
+    """The JSON object (a dict) in a file: sidecars and calibration metadata.
+
+    Raises
+    ------
+    InputError
+        Unreadable, not valid JSON, or valid JSON that is not an object.
+    """
+    import json
+
+    p = Path(path)
+    try:
+        meta = json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise InputError(f"{p}: not valid JSON ({err})") from None
+    if not isinstance(meta, dict):
+        raise InputError(f"{p}: the metadata must be a JSON object")
+    return meta
+
+
 def check_array(a, path: PathLike, *, ndim: int | Iterable[int] | None = None, what: str = "array",
                 allow_bool: bool = False) -> np.ndarray:
     """Validate a loaded array and return it as C-contiguous float32.

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from recon.errors import InputError
-from recon.io.arrays import check_array, check_file, read_exr, write_exr
+from recon.io.arrays import check_array, check_file, read_exr, read_json_object, write_exr
 from recon.io.atomic import write_text
 
 __all__ = ["read_raw", "write_raw", "sidecar_path"]
@@ -93,11 +93,4 @@ def read_raw(path: PathLike, *, require_metadata: bool = True) -> tuple[np.ndarr
         if require_metadata:
             raise InputError(f"{side}: the metadata sidecar of {p.name} is missing")
         return frame, {}
-    check_file(side)
-    try:
-        meta = json.loads(side.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise InputError(f"{side}: not valid JSON ({err})") from err
-    if not isinstance(meta, dict):
-        raise InputError(f"{side}: the metadata must be a JSON object")
-    return frame, meta
+    return frame, read_json_object(check_file(side))
