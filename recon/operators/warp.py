@@ -115,6 +115,15 @@ class Warp:
         return f"{type(self).__name__}({self.in_shape} -> {self.out_shape})"
 
 
+def _equal_shapes(in_shape, out_shape, what: str, hint: str = "") -> tuple[int, int]:
+    """``in_shape`` for a permutation warp, which needs ``out_shape`` (default: the same) equal."""
+    in_shape = _image_shape(in_shape)
+    out_shape = in_shape if out_shape is None else _image_shape(out_shape)
+    if in_shape != out_shape:
+        raise InputError(f"{what} needs equal shapes, got {in_shape} -> {out_shape}{hint}")
+    return in_shape
+
+
 class Identity(Warp):
     """The identity map (the centre view)."""
 
@@ -125,12 +134,8 @@ class Identity(Warp):
             self.in_shape = self.out_shape = _image_shape(shape)
 
     def bind(self, in_shape, out_shape=None):
-        in_shape = _image_shape(in_shape)
-        out_shape = in_shape if out_shape is None else _image_shape(out_shape)
-        if in_shape != out_shape:
-            raise InputError(f"an identity warp needs equal shapes, got {in_shape} -> {out_shape}"
-                             " (give the view a HomographyWarp/Translate to change size)")
-        return Identity(in_shape)
+        return Identity(_equal_shapes(in_shape, out_shape, "an identity warp",
+                                      " (give the view a HomographyWarp/Translate to change size)"))
 
     def apply(self, x):
         return x
@@ -164,11 +169,7 @@ class Flip(Warp):
             self.in_shape = self.out_shape = _image_shape(shape)
 
     def bind(self, in_shape, out_shape=None):
-        in_shape = _image_shape(in_shape)
-        out_shape = in_shape if out_shape is None else _image_shape(out_shape)
-        if in_shape != out_shape:
-            raise InputError(f"a flip needs equal shapes, got {in_shape} -> {out_shape}")
-        return Flip(self.axes, in_shape)
+        return Flip(self.axes, _equal_shapes(in_shape, out_shape, "a flip"))
 
     def apply(self, x):
         return x[self._index]
