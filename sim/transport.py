@@ -19,10 +19,16 @@ The tracer here is independent of Mitsuba's path integrator (its own loop over
 (:mod:`sim.render`) a meaningful check of it. With the same sample count the two estimate the
 same expectation; they differ only by Monte Carlo noise.
 
+How the S samples of a pixel are drawn is the ``sampler`` (:func:`pixel_samples`): i.i.d.
+(``independent``, the default) or randomised quasi-Monte Carlo (``sobol``), which stratifies
+every pixel's samples over its area and its band and lowers the per-pixel error of a frame at the
+same cost (16 samples: 0.085 against 0.119 relative to a 512-sample reference;
+``tools/bench_sampler.py``).
+
 Cache files: ``<cache>/transport-<design hash>-<key>.npz`` (``np.savez_compressed``, written to a
 temporary file in the same folder and renamed; read with ``allow_pickle=False``), where the key
-hashes the cube shape, samples per pixel, band intervals, views and seed. The cache folder is
-``$KALEIDOSPEC_CACHE`` or ``~/.cache/kaleidospec``.
+hashes the cube shape, samples per pixel, band intervals, views, seed and sampler. The cache
+folder is ``$KALEIDOSPEC_CACHE`` or ``~/.cache/kaleidospec``.
 """
 
 from __future__ import annotations
@@ -48,6 +54,9 @@ __all__ = [
     "build_transport",
     "load_or_build",
     "render_cached",
+    "SAMPLERS",
+    "check_sampler",
+    "pixel_samples",
     "STATS",
 ]
 
@@ -186,8 +195,52 @@ def _trace_setup(design, shape):
     return mi, scene, sensor, cube_region(design, shape)
 
 
+SAMPLERS = ("independent", "sobol")
+
+
+def check_sampler(sampler: str) -> str:
+    """``sampler`` if it names one of :data:`SAMPLERS`, else :class:`InputError`."""
+    if sampler not in SAMPLERS:
+        raise InputError(f"sampler must be one of {', '.join(SAMPLERS)}, got {sampler!r}")
+    return sampler
+
+
+def pixel_samples(n_pixels: int, spp: int, sampler: str, rng):
+    """A function giving the (5, n) unit-cube samples of flat sample indices ``s``.
+
+    Sample ``k`` of pixel ``i`` is ``s = i·spp + k``; its five coordinates are the position in
+    the pixel (2), on the lens aperture (2) and in the band's wavelength interval (1).
+
+    ``independent``: i.i.d. uniform (plain Monte Carlo). ``sobol``: randomised quasi-Monte
+    Carlo: the first ``spp`` points of one Owen-scrambled Sobol sequence, toroidally shifted by a
+    random vector per pixel (Cranley–Patterson rotation), so every pixel's samples keep the
+    net's stratification (with 4 samples: one in each quarter of the pixel's area, on a grid
+    shifted by the rotation, and one in each quarter of the band) while pixels stay
+    independent.  A pixel's integrand is piecewise constant (mask cells, scene texels, the
+    band's dispersion), for which stratification cuts the error from O(spp^-1/2) towards
+    O(spp^-1) (measured on `small`: about spp^-0.65).
+    """
+    if check_sampler(sampler) == "independent":
+        return lambda s: rng.random((5, s.size))
+    import warnings
+
+    from scipy.stats import qmc
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)    # balance warning for spp not 2^m
+        base = qmc.Sobol(5, scramble=True, seed=rng).random(spp).T     # (5, spp)
+    shift = rng.random((5, n_pixels))
+
+    def draw(s):
+        u = base[:, s % spp] + shift[:, s // spp]
+        return u - np.floor(u)
+
+    return draw
+
+
 def trace_band(design, shape, interval, spp: int, seed: int = 0, pixels=None,
-               max_depth: int = 24, batch: int = 1 << 21, _setup=None):
+               max_depth: int = 24, batch: int = 1 << 21, sampler: str = "independent",
+               _setup=None):
     """Trace one band: every (pixel, sample) → (texel, throughput).
 
     Parameters
@@ -203,6 +256,8 @@ def trace_band(design, shape, interval, spp: int, seed: int = 0, pixels=None,
         Seeds the NumPy generator that draws every sample (the result is deterministic).
     pixels : ndarray of int, optional
         Flat sensor pixels to trace; the used views by default.
+    sampler : {"independent", "sobol"}
+        How each pixel's samples are drawn (:func:`pixel_samples`).
 
     Returns
     -------
@@ -228,13 +283,14 @@ def trace_band(design, shape, interval, spp: int, seed: int = 0, pixels=None,
     ctx = mi.BSDFContext()
     keys_all, w_all = [], []
     total = pixels.size * spp
+    draw = pixel_samples(pixels.size, spp, sampler, rng)
     for start in range(0, total, batch):
         n = min(batch, total - start)
         s_idx = np.arange(start, start + n, dtype=np.int64)
         pix = pixels[s_idx // spp]
         r = (pix // Ws).astype(np.float64)
         c = (pix % Ws).astype(np.float64)
-        u = rng.random((5, n))
+        u = draw(s_idx)
         pos = mi.Point2f(((c + u[0]) / Ws).astype(np.float32), ((r + u[1]) / Hs).astype(np.float32))
         ap = mi.Point2f(u[2].astype(np.float32), u[3].astype(np.float32))
         lam = (interval[0] + (interval[1] - interval[0]) * u[4]).astype(np.float32)
@@ -278,18 +334,20 @@ def trace_band(design, shape, interval, spp: int, seed: int = 0, pixels=None,
             wsum.astype(np.float32))
 
 
-def _key(design, shape, intervals, spp, seed, pixels_desc) -> str:
+def _key(design, shape, intervals, spp, seed, pixels_desc, sampler) -> str:
     blob = json.dumps({
         "format": _FORMAT, "design": design.hash, "shape": [int(s) for s in shape],
         "intervals": np.round(np.asarray(intervals, np.float64), 6).tolist(), "spp": int(spp),
-        "seed": int(seed), "pixels": pixels_desc,
+        "seed": int(seed), "pixels": pixels_desc, "sampler": sampler,
     }, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
 def build_transport(design, shape, wavelengths=None, *, spp: int = 4, seed: int = 0,
-                    sampling: str = "box", crop=None, progress: bool = False) -> Transport:
+                    sampling: str = "box", sampler: str = "independent", crop=None,
+                    progress: bool = False) -> Transport:
     """Trace the optical system for every band inside the filter's pass band (not cached)."""
+    check_sampler(sampler)
     wl = design.wavelengths if wavelengths is None else np.asarray(wavelengths, np.float64)
     iv = band_intervals(design, wl, sampling)
     setup = _trace_setup(design, shape)
@@ -308,7 +366,7 @@ def build_transport(design, shape, wavelengths=None, *, spp: int = 4, seed: int 
             w.append(np.zeros(0, np.float32))
             continue
         p, t, ww = trace_band(design, shape, iv[l], spp, seed=seed + 7919 * l, pixels=pixels,
-                              _setup=setup)
+                              sampler=sampler, _setup=setup)
         pix.append(p), tex.append(t), w.append(ww)
     STATS["built"] += 1
     return Transport(design.hash, (int(shape[0]), int(shape[1])),
@@ -352,13 +410,14 @@ _MEMO: dict[str, Transport] = {}
 
 
 def load_or_build(design, shape, wavelengths=None, *, spp: int = 4, seed: int = 0,
-                  sampling: str = "box", crop=None, progress: bool = False,
-                  use_disk: bool = True) -> Transport:
+                  sampling: str = "box", sampler: str = "independent", crop=None,
+                  progress: bool = False, use_disk: bool = True) -> Transport:
     """The transport for this design/shape/bands: from memory, from the cache folder, or traced
     (and then written to the cache folder atomically)."""
+    check_sampler(sampler)
     wl = design.wavelengths if wavelengths is None else np.asarray(wavelengths, np.float64)
     iv = band_intervals(design, wl, sampling)
-    key = _key(design, shape, iv, spp, seed, [list(design.views), crop])
+    key = _key(design, shape, iv, spp, seed, [list(design.views), crop], sampler)
     if key in _MEMO:
         return _MEMO[key]
     path = cache_dir() / f"transport-{design.hash}-{key}.npz"
@@ -370,8 +429,8 @@ def load_or_build(design, shape, wavelengths=None, *, spp: int = 4, seed: int = 
         except (OSError, ValueError, KeyError):
             tr = None  # a damaged or outdated file is simply rebuilt
     if tr is None:
-        tr = build_transport(design, shape, wl, spp=spp, seed=seed, sampling=sampling, crop=crop,
-                             progress=progress)
+        tr = build_transport(design, shape, wl, spp=spp, seed=seed, sampling=sampling,
+                             sampler=sampler, crop=crop, progress=progress)
         if use_disk:
             _save(tr, path)
             tr.path = path
@@ -380,7 +439,8 @@ def load_or_build(design, shape, wavelengths=None, *, spp: int = 4, seed: int = 
 
 
 def render_cached(design, cube: np.ndarray, wavelengths, *, spp: int = 4, seed: int = 0,
-                  sampling: str = "box", progress: bool = False, crop=None) -> np.ndarray:
+                  sampling: str = "box", sampler: str = "independent", progress: bool = False,
+                  crop=None) -> np.ndarray:
     """Per-band sensor irradiance (L, Hs, Ws) float32 of ``cube`` (H, W, L) from the cache.
 
     ``wavelengths`` are the cube's band centres; they must be bands of the design (bands
@@ -391,5 +451,5 @@ def render_cached(design, cube: np.ndarray, wavelengths, *, spp: int = 4, seed: 
 
     cube, wl = check_cube(design, cube, wavelengths)
     tr = load_or_build(design, cube.shape[:2], wl, spp=spp, seed=seed, sampling=sampling,
-                       crop=crop, progress=progress)
+                       sampler=sampler, crop=crop, progress=progress)
     return tr.apply(cube)
