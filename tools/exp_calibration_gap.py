@@ -17,7 +17,9 @@ the ColorChecker, the PSNR reached with
 - ``cal+geom``: the calibrated mask images with the *simulator's* geometry, a per-band affine
   map from the ground-truth grid into every view's box fitted to the transport
   (:class:`recon.operators.BandWarpCassi`): what perfect geometric calibration would reach
-  with the shifted-mask model.
+  with the shifted-mask model;
+- ``model err``: how far the calibrated operator misses a noise-free frame of the truth,
+  ``||g - H f|| / ||g||``.
 
 Knobs, applied to every transport the run builds (the scene frame, the captures, the exact
 operators) by wrapping :func:`sim.transport.load_or_build` and the band intervals a lab reads
@@ -27,9 +29,14 @@ of the product.  A temporary cache folder keeps the product's caches clean.
 - ``--sampling box`` (the instrument: wavelengths spread over each band's width) or ``centre``
   (a what-if instrument seeing each band at one wavelength: no smear within a band);
 - ``--spp N``: rays per pixel and band (4 in the product);
-- ``--repeats N``: noisy frames averaged per calibration capture (0: noise-free captures).
+- ``--sampler independent|sobol``: how a pixel's rays are drawn (i.i.d. in the product;
+  ``sobol`` stratifies them, :func:`sim.transport.pixel_samples`);
+- ``--repeats N``: noisy frames averaged per calibration capture (0: noise-free captures);
+- ``--soften SIGMA``: also reconstruct both scenes blurred by a Gaussian of SIGMA texels
+  (rows ``natural~``, ``colorchecker~``): the same content without the sharp edges.
 
-Usage: python3 tools/exp_calibration_gap.py [--sampling box|centre] [--spp 4] [--views 1,3,5]
+Usage: python3 tools/exp_calibration_gap.py [--sampling box|centre] [--spp 4]
+       [--sampler independent|sobol] [--views 1,3,5] [--soften SIGMA]
 """
 
 from __future__ import annotations
@@ -43,18 +50,21 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sampling", choices=("box", "centre"), default="box")
     ap.add_argument("--spp", type=int, default=4)
+    ap.add_argument("--sampler", choices=("independent", "sobol"), default="independent")
     ap.add_argument("--views", default="1,3,5")
     ap.add_argument("--repeats", type=int, default=4,
                     help="noisy frames averaged per calibration capture (0: noise-free)")
+    ap.add_argument("--soften", type=float, default=0.0,
+                    help="also reconstruct the scenes blurred by a Gaussian of this many texels")
     ap.add_argument("--trace-seed", type=int, default=1,
                     help="random seed of the second exact operator's trace (the frame's is 0)")
     a = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="kaleidospec-gap-") as cache:
         os.environ["KALEIDOSPEC_CACHE"] = cache
-        run(a)
+        run(a, cache)
 
 
-def run(a) -> None:
+def run(a, scratch) -> None:
     import sim.transport as transport
 
     build, intervals = transport.load_or_build, transport.band_intervals
@@ -68,6 +78,7 @@ def run(a) -> None:
         if kw.get("sampling", "box") == "box":
             kw["sampling"] = a.sampling
         kw["spp"] = a.spp
+        kw["sampler"] = a.sampler
         return build(*args, **kw)
 
     transport.load_or_build = what_if
@@ -82,12 +93,16 @@ def run(a) -> None:
     exact = {n: pipeline.oracle_operator(d, n) for n in counts}
     retraced = {n: pipeline.oracle_operator(d, n, seed=a.trace_seed) for n in counts}
     geometry = transport_geometry(d, cal)
-    print(f"sampling {a.sampling}, {a.spp} rays per pixel and band, {a.repeats} frames per "
+    print(f"sampling {a.sampling}, {a.spp} rays per pixel and band ({a.sampler}), {a.repeats} frames per "
           f"calibration capture; exact* traced with seed {a.trace_seed}")
     print(f"{'scene':<13}{'views':>6}{'calibrated':>12}{'cal+geom':>10}{'exact':>8}{'exact*':>8}"
-          f"{'exact-cal':>11}{'exact*-cal':>12}")
-    for scene in ("natural", "colorchecker"):
-        frame, meta, truth, _ = pipeline.render_scene(scene, d, seed=0)
+          f"{'exact-cal':>11}{'exact*-cal':>12}{'model err':>11}")
+    scenes = [("natural", "natural"), ("colorchecker", "colorchecker")]
+    if a.soften > 0:
+        scenes += [(f"{name}~", softened(name, d, a.soften, scratch)) for name, _ in scenes[:2]]
+    for scene, source in scenes:
+        frame, meta, truth, _ = pipeline.render_scene(source, d, seed=0)
+        clean = pipeline.render_scene(source, d, seed=0, noise=False)
         for n in counts:
             _, cal_info = pipeline.reconstruct_views(frame, meta, cal, n, truth=truth, design=d)
             _, geo = reconstruct_with_geometry(pipeline, frame, meta, cal, geometry, n, truth)
@@ -95,8 +110,39 @@ def run(a) -> None:
             _, ret = pipeline.reconstruct_oracle(frame, meta, d, n, truth=truth, op=retraced[n])
             c, g = cal_info["metrics"]["psnr"], geo["metrics"]["psnr"]
             o, r = ora["metrics"]["psnr"], ret["metrics"]["psnr"]
+            err = model_error(pipeline, cal, d, clean, n)
             print(f"{scene:<13}{n:>6}{c:>12.2f}{g:>10.2f}{o:>8.2f}{r:>8.2f}{o - c:>+11.2f}"
-                  f"{r - c:>+12.2f}", flush=True)
+                  f"{r - c:>+12.2f}{err:>10.1%}", flush=True)
+
+
+def model_error(pipeline, cal, design, clean, n):
+    """||g - H f|| / ||g||: how far the calibrated operator H of ``n`` views misses a noise-free
+    frame g of the truth f (on the calibration's grid)."""
+    import numpy as np
+    from recon.calibration import measurements
+
+    frame, meta, truth, _ = clean
+    ids = pipeline.VIEW_ORDER[:n]
+    g = measurements(frame, cal, ids, metadata=meta) / np.float32(meta["radiance_scale"])
+    f = pipeline.truth_on_grid(truth, design, cal).transpose(2, 0, 1)
+    m = pipeline.calibrated_operator(cal, ids).forward(np.ascontiguousarray(f))
+    return float(np.linalg.norm(g - m) / np.linalg.norm(g))
+
+
+def softened(name, design, sigma, folder):
+    """A cube file of scene ``name`` blurred by a Gaussian of ``sigma`` texels, band by band."""
+    import numpy as np
+    from scipy.ndimage import gaussian_filter
+
+    from scenes.registry import get_scene
+
+    v = design.view_size_px
+    cube, wl = get_scene(name, shape=(v, v), wavelengths=design.wavelengths)
+    soft = np.stack([gaussian_filter(cube[:, :, b], sigma, mode="nearest")
+                     for b in range(cube.shape[2])], axis=2).astype(np.float32)
+    path = os.path.join(folder, f"{name}-soft.npz")
+    np.savez(path, cube=soft, wavelengths=wl)
+    return path
 
 
 def transport_geometry(design, cal):

@@ -113,8 +113,11 @@ def test_calibrated_is_within_a_margin_of_the_oracle(setup):
 
 def test_calibrated_is_within_1db_of_the_retraced_exact_operator(setup):
     """The exact operator traced with another seed has the instrument's optics but not this
-    frame's Monte Carlo draw (which texel and wavelength each of a pixel's 4 rays met): what
-    a perfect model of the physics would reach.  Calibration must come within 1 dB of it."""
+    frame's Monte Carlo draw (which texel and wavelength each of a pixel's 4 rays met).  At
+    the instrument's 4 rays it carries its own draw's error (0.24 relative per band and pixel,
+    ``tools/bench_sampler.py``), so it is not the converged physics (on `small`, a 32-sample Sobol
+    trace reconstructs the ColorChecker 2.3 dB better than calibration; README), but it is
+    what any operator traced like the instrument reaches: calibration must stay within 1 dB."""
     pipeline, d, cal, frame, meta, truth, wl = setup
     _, info = pipeline.reconstruct_views(frame, meta, cal, 5, truth=truth)
     op = pipeline.oracle_operator(d, 5, seed=1)
