@@ -414,7 +414,6 @@ def load_or_build(design, shape, wavelengths=None, *, spp: int = 4, seed: int = 
                   progress: bool = False, use_disk: bool = True) -> Transport:
     """The transport for this design/shape/bands: from memory, from the cache folder, or traced
     (and then written to the cache folder atomically)."""
-    check_sampler(sampler)
     wl = design.wavelengths if wavelengths is None else np.asarray(wavelengths, np.float64)
     iv = band_intervals(design, wl, sampling)
     key = _key(design, shape, iv, spp, seed, [list(design.views), crop], sampler)

@@ -138,8 +138,7 @@ def softened(name, design, sigma, folder):
 
     v = design.view_size_px
     cube, wl = get_scene(name, shape=(v, v), wavelengths=design.wavelengths)
-    soft = np.stack([gaussian_filter(cube[:, :, b], sigma, mode="nearest")
-                     for b in range(cube.shape[2])], axis=2).astype(np.float32)
+    soft = gaussian_filter(cube, (sigma, sigma, 0), mode="nearest").astype(np.float32)
     path = os.path.join(folder, f"{name}-soft.npz")
     np.savez(path, cube=soft, wavelengths=wl)
     return path
