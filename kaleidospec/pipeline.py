@@ -23,7 +23,9 @@ The reconstruction grid is the calibration's: the centre view's box, with column
 shortest band puts the view's first column, and only the part of the view that the mask codes
 (the guard stripe's columns are never measured).  :func:`truth_on_grid` moves the ground truth
 onto it (a sub-pixel translation, from the design and the calibrated box and offsets) for the
-metrics.
+metrics.  The footprint model (``model="footprint"``, calibrated with ``footprint=True``:
+:mod:`recon.calibration.footprint`) reconstructs on the comb target's texel grid instead, which
+is the scenes' grid: no translation.
 """
 
 from __future__ import annotations
@@ -97,7 +99,7 @@ def design_for_views(design, n_views: int):
 
 # ------------------------------------------------------------------------------- calibration
 def calibrate(design, *, cache_dir=None, progress: bool = True, force: bool = False,
-              repeats: int = 4):
+              repeats: int = 4, footprint: bool = False):
     """The calibration of ``design`` from rendered captures, cached by design hash.
 
     Parameters
@@ -112,6 +114,10 @@ def calibrate(design, *, cache_dir=None, progress: bool = True, force: bool = Fa
         Recalibrate even if a cached calibration exists.
     repeats : int
         Noisy frames averaged per capture (:mod:`sim.captures`); 0 renders noise-free.
+    footprint : bool
+        Also measure the footprint model with the comb captures (L·P_y·P_x more captures,
+        :func:`recon.calibration.footprint.comb_period`: 165 and 19 s more for ``small``); a
+        cached calibration without it is redone with it.
 
     Returns
     -------
@@ -123,19 +129,22 @@ def calibrate(design, *, cache_dir=None, progress: bool = True, force: bool = Fa
     cdir = _cache_dir(cache_dir)
     if not force:
         cal = load_cached(cdir, design.hash)
-        if cal is not None:
+        if cal is not None and (cal.has_footprint or not footprint):
             return cal
-    cal = calibrate_from_captures(design, repeats=repeats, progress=progress)
+    cal = calibrate_from_captures(design, repeats=repeats, progress=progress,
+                                  footprint=footprint)
     save_calibration(calibration_path(cdir, design.hash), cal)
     return cal
 
 
 def calibrate_from_captures(design, *, repeats: int = 4, progress: bool = False, captures=None,
-                            smeared: bool | None = None):
+                            smeared: bool | None = None, footprint: bool = False):
     """Render the captures (unless given) and run every calibration step; nothing is cached.
 
     ``smeared`` also calibrates the "mask, then shift and smear" model (smear kernels, view
     masks, its own gains; default: when :data:`CALIBRATED_MODEL` is ``"smeared"``).
+    ``footprint`` also renders the comb captures and measures the footprint model (its system
+    matrix and its own gains, :mod:`recon.calibration.footprint`).
     """
     if smeared is None:
         smeared = CALIBRATED_MODEL == "smeared"
@@ -145,6 +154,7 @@ def calibrate_from_captures(design, *, repeats: int = 4, progress: bool = False,
                                    fit_dispersion, line_centroids, mask_images,
                                    view_homographies)
     from recon.calibration.dispersion import band_mean_positions, band_positions
+    from recon.calibration.footprint import comb_period
     from recon.calibration.mask import view_masks, view_stack, white_levels
     from sim.captures import CHECKER_NM, render_captures
     from sim.transport import band_intervals
@@ -155,7 +165,7 @@ def calibrate_from_captures(design, *, repeats: int = 4, progress: bool = False,
     ids = tuple(sorted(design.views))
     wl = caps.wavelengths
     steps = ["views", "dispersion", "masks", "geometry"] + (["view masks"] if smeared else []) \
-        + ["radiometry"]
+        + (["footprints"] if footprint else []) + ["radiometry"]
     bar = _bar(len(steps), "calibration", progress)
     try:
         boxes = find_view_boxes(caps.white, ids, margin_x=BOX_MARGIN_X)
@@ -204,19 +214,50 @@ def calibrate_from_captures(design, *, repeats: int = 4, progress: bool = False,
             vm = np.where(vm >= MASK_FLOOR, vm, np.float32(0.0))
             cal = dataclasses.replace(cal, view_masks=vm, smear_gains=expo / vlevels)
             _tick(bar)
+        if footprint:
+            smear = np.ptp(band_positions(fit, intervals, SMEAR_SAMPLES), axis=2).max()
+            cal = _footprints(design, cal, cen, caps.meta["line"][0]["column"],
+                              comb_period(smear, float(radii.max())), repeats, progress)
+            _tick(bar)
         # Radiometry, per model: reconstruct the ColorChecker with the provisional gains,
         # compare its patches with their reference radiance (reflectance x D65, cube units).
         gains = _radiometry(design, caps, cal, "shifted")
         if smeared:
             extra["smear_gains"] = _radiometry(design, caps, cal, "smeared")
+        if footprint:
+            extra["footprint_gains"] = _radiometry(design, caps, cal, "footprint")
         _tick(bar)
     finally:
         if bar is not None:
             bar.close()
-    for name, g in (("", gains), ("smeared-model ", extra.get("smear_gains", gains))):
+    for name, g in (("", gains), ("smeared-model ", extra.get("smear_gains", gains)),
+                    ("footprint-model ", extra.get("footprint_gains", gains))):
         if not np.all(g > 0):
             raise RuntimeError(f"radiometric calibration failed: {name}gains {g.tolist()}")
     return dataclasses.replace(cal, gains=gains, **extra)
+
+
+def _footprints(design, cal, line_centroids, line_column, period, repeats, progress):
+    """``cal`` with the footprint model: the system matrix decoded from the comb captures of
+    ``period`` (streamed, one frame at a time), provisional gains 1 (the captures are divided by
+    the lit texels' radiance)."""
+    import dataclasses
+
+    from recon.calibration.footprint import footprint_matrix, line_anchor, predicted_positions
+    from sim.captures import comb_captures
+
+    i = cal.view_ids.index(0)
+    shift = (0.0, line_anchor(line_centroids, cal.offsets, line_column, centre=i))
+    pos = predicted_positions(cal.homographies, cal.offsets, cal.view_boxes[0, 2:], shift)
+    caps = comb_captures(design, period, repeats=repeats, progress=progress)
+    a, grid = footprint_matrix(caps, cal.view_boxes, pos)
+    py, px = period
+    names = [f"comb{py}x{px}@{w:g}nm" for w in cal.wavelengths]
+    return dataclasses.replace(cal, footprint_grid=np.array(grid, np.int64),
+                               footprint_indptr=a.indptr.astype(np.int64),
+                               footprint_indices=a.indices,
+                               footprint_data=a.data, footprint_gains=np.ones(cal.n_bands),
+                               captures=list(cal.captures) + names)
 
 
 def _radiometry(design, caps, cal, model) -> np.ndarray:
@@ -229,7 +270,7 @@ def _radiometry(design, caps, cal, model) -> np.ndarray:
     n = max(i + 1 for i in range(n) if set(VIEW_ORDER[:i + 1]) <= set(ids))
     cube, _ = reconstruct_views(caps.colorchecker, caps.meta["colorchecker"], cal, n,
                                 model=model, **_solver_defaults())
-    oy, ox = grid_offset(design, cal)
+    oy, ox = grid_offset(design, cal, model)
     pb = caps.patch_boxes.astype(np.float64).copy()
     pb[:, 0] -= oy
     pb[:, 1] -= ox
@@ -238,7 +279,7 @@ def _radiometry(design, caps, cal, model) -> np.ndarray:
     inside = ((pb[:, 0] >= 0) & (pb[:, 1] >= 0) & (pb[:, 0] + pb[:, 2] <= cube.shape[0])
               & (pb[:, 1] + pb[:, 3] <= cube.shape[1]))
     f = patch_spectra(cube, pb[inside])
-    g0 = cal.smear_gains if model == "smeared" else cal.gains
+    g0 = model_gains(cal, model)
     return g0 * fit_gains(f, caps.patch_radiance[inside])
 
 
@@ -319,9 +360,36 @@ def render_scene(scene, design, *, seed: int = 0, noise: bool = True, angle_deg=
 
 
 # ------------------------------------------------------------------------------- grids
-def grid_offset(design, cal) -> tuple[float, float]:
+def model_of(cal, model: str | None = None) -> str:
+    """The calibrated model that ``model`` names for ``cal`` (``None``: :data:`CALIBRATED_MODEL`;
+    ``"smeared"`` falls back to ``"shifted"`` for a calibration without it)."""
+    from recon.calibration.operator import resolve_model
+
+    if model is None:
+        model = "auto" if CALIBRATED_MODEL == "smeared" else CALIBRATED_MODEL
+    return resolve_model(cal, model)
+
+
+def model_gains(cal, model: str | None = None) -> np.ndarray:
+    """(L,) the radiometric gains of the calibrated ``model``."""
+    kind = model_of(cal, model)
+    own = {"smeared": cal.smear_gains, "footprint": cal.footprint_gains}.get(kind)
+    return cal.gains if own is None else own
+
+
+def cube_grid(cal, model: str | None = None) -> tuple[int, int]:
+    """(H, W) of the cubes the calibrated ``model`` reconstructs."""
+    if model_of(cal, model) == "footprint":
+        return tuple(int(v) for v in cal.footprint_grid)
+    return tuple(cal.cube_shape[:2])
+
+
+def grid_offset(design, cal, model: str | None = None) -> tuple[float, float]:
     r"""Where the reconstruction grid sits on the ground-truth grid: truth pixel
     :math:`(y_v + o_y,\ x_v + o_x)` is reconstruction pixel :math:`(y_v, x_v)`.
+
+    The footprint model's grid is the comb target's, the scenes' own grid: :math:`(0, 0)`.
+    Otherwise:
 
     The centre view's cube column :math:`x` lands, in band :math:`l`, on sensor column
     :math:`c_0 + x + \bar\varphi_l` on average over the band (design,
@@ -330,6 +398,8 @@ def grid_offset(design, cal) -> tuple[float, float]:
     :math:`b_0 + x_v + o_{0,l}`.  So :math:`o_x = b_0 - c_0 + \overline{o_{0,l} -
     \bar\varphi_l}` (mean over bands), and :math:`o_y = b_{0,y} - r_0`.
     """
+    if model_of(cal, model) == "footprint":
+        return 0.0, 0.0
     if 0 not in cal.view_ids:
         raise InputError("the calibration has no centre view")
     i = cal.view_ids.index(0)
@@ -361,17 +431,18 @@ def _design_of(metadata, design=None):
     return Design.from_dict(d)
 
 
-def truth_on_grid(truth, design, cal) -> np.ndarray:
-    """The ground truth (v, v, L) resampled onto the calibration's grid ``cal.cube_shape``.
+def truth_on_grid(truth, design, cal, model: str | None = None) -> np.ndarray:
+    """The ground truth (v, v, L) resampled onto the grid of the calibrated ``model``
+    (:func:`cube_grid`).
 
     A bilinear sub-pixel translation by :func:`grid_offset`; pixels beyond the truth's edge take
     the edge value.
     """
     t = np.asarray(truth, dtype=np.float32)
-    h, w, n = cal.cube_shape
+    (h, w), n = cube_grid(cal, model), cal.n_bands
     if t.ndim != 3 or t.shape[2] != n:
         raise InputError(f"truth shape {t.shape} does not have the calibration's {n} bands")
-    oy, ox = grid_offset(design, cal)
+    oy, ox = grid_offset(design, cal, model)
     iy, ix = math.floor(oy), math.floor(ox)
     fy, fx = np.float32(oy - iy), np.float32(ox - ix)
     # Edge-padded so that the (h+1, w+1) window at (iy, ix) always exists.
@@ -438,16 +509,13 @@ def calibrated_operator(cal, view_ids, model: str | None = None):
     """:func:`recon.calibration.operator_from_calibration` with the gains folded in: the
     operator maps a cube in radiance (cube) units to exposure-normalised DN.
 
-    ``model`` is ``"smeared"``, ``"shifted"`` or ``"auto"`` (:data:`recon.calibration.operator.MODELS`);
-    ``None`` takes :data:`CALIBRATED_MODEL` (``"smeared"`` falls back to ``"shifted"`` for a
-    calibration without the smeared model's arrays).
+    ``model`` is one of :data:`recon.calibration.operator.MODELS` or ``None``
+    (:func:`model_of`).
     """
-    from recon.calibration.operator import operator_from_calibration, resolve_model
+    from recon.calibration.operator import operator_from_calibration
 
-    if model is None:
-        model = "auto" if CALIBRATED_MODEL == "smeared" else CALIBRATED_MODEL
-    kind = resolve_model(cal, model)
-    gains = cal.smear_gains if kind == "smeared" and cal.smear_gains is not None else cal.gains
+    kind = model_of(cal, model)
+    gains = model_gains(cal, kind)
     if not np.all(gains > 0):
         raise InputError("the calibration's radiometric gains must be positive")
     return operator_from_calibration(cal, view_ids, model=kind, band_scale=1.0 / gains)
@@ -471,15 +539,15 @@ def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = DEFAULTS["
         in the calibration.
     solver, iters, tau, x0, progress
         As for :func:`recon.app.reconstruct`.
-    truth : (v, v, L) or cal.cube_shape array, optional
-        Ground truth on the design's grid (moved onto the calibration's grid with
+    truth : (v, v, L) or (H, W, L) array, optional
+        Ground truth on the design's grid (moved onto the model's grid :func:`cube_grid` with
         :func:`truth_on_grid`, using the design in the sidecar) or already on it.
     model : str, optional
         The calibrated forward model (:func:`calibrated_operator`).
 
     Returns
     -------
-    cube : (H, W, L) float32, ``cal.cube_shape``, cube units
+    cube : (H, W, L) float32, on :func:`cube_grid`, cube units
     info : dict
         :func:`recon.app.reconstruct`'s, plus ``view_ids``, ``seconds`` and, with a truth,
         ``metrics`` and ``truth_grid`` (the truth on the reconstruction grid).
@@ -499,8 +567,8 @@ def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = DEFAULTS["
     tg = None
     if truth is not None:
         t = np.asarray(truth, dtype=np.float32)
-        tg = t if t.shape == tuple(cal.cube_shape) else \
-            truth_on_grid(t, _design_of(metadata, design), cal)
+        tg = t if t.shape == cube_grid(cal, model) + (cal.n_bands,) else \
+            truth_on_grid(t, _design_of(metadata, design), cal, model)
     cube, info = solve_views(calibrated_operator(cal, ids, model), g, len(ids), solver=solver,
                              iters=iters, tau=tau, x0=x0, truth=tg, wavelengths=cal.wavelengths,
                              progress=progress)
@@ -566,7 +634,7 @@ def _finite(obj):
 def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS["solver"],
         iters: int = DEFAULTS["iters"], tau=None, seed: int = 0, progress: bool = True, cache_dir=None,
         oracle: bool = True, figures: bool = True, raw=None, widen: bool = True,
-        log=None) -> dict:
+        log=None, model: str | None = None) -> dict:
     """Render ``scene``, calibrate (cached), reconstruct for every view count, write a report.
 
     Everything is written into a fresh temporary folder beside ``out_dir`` that replaces
@@ -595,6 +663,9 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
         ``False`` keeps it, and a count needing views it lacks is an error.
     log : callable, optional
         Called with each summary line (default: nothing).
+    model : {"shifted", "footprint"}, optional
+        The calibrated forward model (default :data:`CALIBRATED_MODEL`); ``"footprint"``
+        calibrates with the comb captures too.
 
     Returns
     -------
@@ -636,11 +707,13 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
                          f"{list(design.views)}, {max(counts)} views need {list(VIEW_ORDER[:max(counts)])}")
     cal_t0 = time.perf_counter()
     cached = _is_cached(design, cache_dir)
-    cal = calibrate(design, cache_dir=cache_dir, progress=progress)
+    cal = calibrate(design, cache_dir=cache_dir, progress=progress,
+                    footprint=model == "footprint")
     cal_seconds = time.perf_counter() - cal_t0
     from recon.calibration import check_design
 
     check_design(cal, meta)
+    model = model_of(cal, model)
     missing = [v for v in VIEW_ORDER[:max(counts)] if v not in cal.view_ids]
     if missing:
         raise InputError(f"view(s) {missing} missing from the calibration {list(cal.view_ids)}")
@@ -648,25 +721,28 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
     tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.tmp-", dir=parent))
     try:
         write_raw(tmp / "raw.exr", frame, meta)
-        tg = truth_on_grid(truth, design, cal)
+        tg = truth_on_grid(truth, design, cal, model)
         write_cube(tmp / "truth.exr", tg, wl)
         rgb_truth, peak = _srgb(tg, wl)
         _write_png(tmp / "srgb_truth.png", rgb_truth)
         result = {
             "scene": str(scene), "design": design.to_dict(), "design_hash": design.hash,
             "wavelengths_nm": [float(x) for x in wl], "solver": solver, "iters": int(iters),
-            "tau": tau, "seed": int(seed), "cube_shape": list(cal.cube_shape),
+            "tau": tau, "seed": int(seed), "model": model,
+            "cube_shape": list(cube_grid(cal, model)) + [cal.n_bands],
             "calibration": {"cached": cached, "seconds": cal_seconds,
-                            "view_ids": list(cal.view_ids), "gains": cal.gains.tolist()},
+                            "view_ids": list(cal.view_ids),
+                            "gains": model_gains(cal, model).tolist()},
             "views": {}, "oracle": {},
         }
         cubes = {}
-        patches = colorchecker_patches(design, cal) if str(scene) == "colorchecker" else {}
+        patches = colorchecker_patches(design, cal, model) if str(scene) == "colorchecker" \
+            else {}
         bar = _bar(len(counts) * (2 if oracle else 1), "reconstruct", progress)
         try:
             for n in counts:
                 cube, info = reconstruct_views(frame, meta, cal, n, solver=solver, iters=iters,
-                                               tau=tau, truth=tg, design=design)
+                                               tau=tau, truth=tg, design=design, model=model)
                 _tick(bar)
                 cubes[n] = cube
                 write_cube(tmp / f"cube_{n}views.exr", cube, wl)
@@ -687,7 +763,8 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
             from recon.report import band_montage, spectra_plot
 
             band_montage(tmp / "bands.png", tg, cubes, wl)
-            spectra_plot(tmp / "spectra.png", tg, cubes, wl, _probe_boxes(scene, design, cal))
+            spectra_plot(tmp / "spectra.png", tg, cubes, wl,
+                         _probe_boxes(scene, design, cal, model))
         result["targets"] = targets(result)
         result["total_seconds"] = time.perf_counter() - t_start
         write_text(tmp / "metrics.json",
@@ -744,7 +821,8 @@ def targets(result) -> dict:
 def summary_lines(result) -> list[str]:
     """The human summary ``kaleidospec run`` prints."""
     lines = [f"scene {result['scene']}, design {result['design_hash']}, cube "
-             f"{'x'.join(str(x) for x in result['cube_shape'])}, {result['solver']} x"
+             f"{'x'.join(str(x) for x in result['cube_shape'])}, {result.get('model', 'shifted')}"
+             f" model, {result['solver']} x"
              f"{result['iters']}, tau " + " / ".join(
                  f"{e['tau']:g}" for e in result["views"].values() if e.get("tau") is not None),
              f"calibration: {'cached' if result['calibration']['cached'] else 'rendered'} "
@@ -803,13 +881,13 @@ def _write_png(path, rgb) -> None:
         iio.imwrite(tmp, np.round(np.clip(rgb, 0, 1) * 255).astype(np.uint8), extension=".png")
 
 
-def colorchecker_patches(design, cal) -> dict:
-    """The ColorChecker patches that lie wholly on the reconstruction grid, their middle half
-    (edges mix neighbouring patches): ``{patch index: (y0, x0, h, w)}``."""
+def colorchecker_patches(design, cal, model: str | None = None) -> dict:
+    """The ColorChecker patches that lie wholly on the ``model``'s reconstruction grid, their
+    middle half (edges mix neighbouring patches): ``{patch index: (y0, x0, h, w)}``."""
     from scenes.colorchecker import patch_boxes
 
-    h, w, _ = cal.cube_shape
-    oy, ox = grid_offset(design, cal)
+    h, w = cube_grid(cal, model)
+    oy, ox = grid_offset(design, cal, model)
     out = {}
     for k, (r0, c0, r1, c1) in enumerate(patch_boxes((design.view_size_px,) * 2)):
         y0, x0 = int(round(r0 - oy)), int(round(c0 - ox))
@@ -833,12 +911,12 @@ def patch_delta_e2000(cube, truth, boxes, wavelengths) -> float:
     return delta_e2000(spectra(cube), spectra(truth), wavelengths)[0]
 
 
-def _probe_boxes(scene, design, cal):
+def _probe_boxes(scene, design, cal, model=None):
     """A few regions (y0, x0, h, w) on the reconstruction grid for the spectral plots: six
     ColorChecker patches, or four small squares elsewhere."""
-    h, w, _ = cal.cube_shape
+    h, w = cube_grid(cal, model)
     if str(scene) == "colorchecker":
-        patches = colorchecker_patches(design, cal)
+        patches = colorchecker_patches(design, cal, model)
         # light skin, blue sky, bluish green, red, green, blue
         out = [(f"patch {k + 1}", patches[k]) for k in (1, 2, 5, 13, 14, 15) if k in patches]
         if out:

@@ -17,6 +17,9 @@ the board's pattern size from that sidecar, never from the design.
 ``checker_white``  the uniform white at 550 nm (the checkerboard's flat field)
 ``colorchecker``   the 24-patch ColorChecker under D65, full spectrum (box band sampling, like
                    a scene frame), with the patches' reference radiances
+``comb``           optional (:func:`comb_captures`): a lattice of single lit texels through
+                   every band's band-pass, all :math:`P_y P_x` phases (L·P_y·P_x frames,
+                   streamed one at a time)
 =================  ======================================================================
 
 Noise.  Captures are taken with the sensor's shot and read noise and, as in a lab, ``repeats``
@@ -38,7 +41,8 @@ import numpy as np
 
 from recon.errors import InputError
 
-__all__ = ["CHECKER_NM", "Captures", "checker_layout", "checker_target", "render_captures", "capture"]
+__all__ = ["CHECKER_NM", "Captures", "checker_layout", "checker_target",
+           "render_captures", "capture", "comb_captures"]
 
 #: Wavelength of the geometric (checkerboard) capture, nm.
 CHECKER_NM = 550.0
@@ -233,6 +237,7 @@ def render_captures(design, *, repeats: int = 4, seed: int = 1000, progress: boo
             elif name == "line":
                 f, m = capture(design, line_cube, wl, wavelength_nm=wl[l], repeats=repeats,
                                seed=s, target="line")
+                m["column"] = v // 2       # the line's place on the target (its datasheet)
                 lines.append(f), meta["line"].append(m)
             elif name == "checker":
                 f, m = capture(design, checker_cube, wl, wavelength_nm=CHECKER_NM,
@@ -265,3 +270,44 @@ def render_captures(design, *, repeats: int = 4, seed: int = 1000, progress: boo
                     checker_white=out["checker_white"], colorchecker=out["colorchecker"],
                     pattern_size=tuple(pattern), patch_radiance=radiance,
                     patch_boxes=boxes.astype(np.int64), meta=meta)
+
+
+def comb_captures(design, period, *, repeats: int = 4, seed: int = 5000,
+                  progress: bool = False):
+    """Band-pass captures of the comb targets (:func:`scenes.calibration.comb`), all phases.
+
+    ``period`` (rows, columns) is the lab's choice, larger than a pixel's footprint
+    (:func:`recon.calibration.footprint.comb_period`).
+
+    A generator, so that only one frame is held at a time: it yields ``(band, (a, b), frame,
+    meta)`` for every band ``l`` and phase ``(a, b)``, band-major.  The sidecar adds what a lab
+    knows of its target: ``period``, ``phase``, ``grid`` (the target's texel rows and columns,
+    the scenes' grid), ``band_nm`` and ``radiance`` (a lit texel's, cube units).
+    """
+    from scenes.calibration import comb, white
+
+    wl = design.wavelengths
+    v = design.view_size_px
+    py, px = (int(p) for p in period)
+    level = white((v, v), wl)[0, 0]
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=wl.size * py * px, desc="comb captures", unit="capture", leave=False)
+    try:
+        for l in range(wl.size):
+            for a in range(py):
+                for b in range(px):
+                    cube = np.zeros((v, v, wl.size), np.float32)
+                    cube[:, :, l] = comb((v, v), wl, period=(py, px), phase=(a, b))[:, :, l]
+                    f, m = capture(design, cube, wl, repeats=repeats,
+                                   seed=seed + 7919 * l + 31 * (a * px + b), target="comb")
+                    m.update(period=[py, px], phase=[a, b], grid=[v, v], band_nm=float(wl[l]),
+                             radiance=float(level[l]))
+                    yield l, (a, b), f, m
+                    if bar is not None:
+                        bar.update(1)
+    finally:
+        if bar is not None:
+            bar.close()

@@ -32,7 +32,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from recon.errors import InputError
-from recon.operators.base import LinearOperator
+from recon.operators.sparse import SparseMatrixOperator
 
 __all__ = ["TransportOperator", "oracle_operator", "oracle_measurements", "band_gains"]
 
@@ -69,45 +69,20 @@ def band_gains(design, wavelengths=None) -> np.ndarray:
     return out * design.max_dn / design.full_well_e
 
 
-class TransportOperator(LinearOperator):
+class TransportOperator(SparseMatrixOperator):
     r"""The simulator's expected frame restricted to some views, ``(L, v, v) -> (K, v, v)``.
 
     Parameters
     ----------
-    matrices : list of L scipy.sparse.csr_matrix, each (K·v·v, H·W)
-        :math:`q_l A_l` restricted to the views' rectangles (rows: view-major, row-major).
+    matrices : list of L scipy.sparse matrices, each (K·v·v, H·W)
+        :math:`q_l A_l` restricted to the views' rectangles (rows: view-major, row-major),
+        placed side by side as one band-major matrix.
     cube_shape : (L, H, W)
     out_shape : (K, v, v)
     """
 
     def __init__(self, matrices, cube_shape, out_shape):
-        self.matrices = [m.astype(np.float32).tocsr() for m in matrices]
-        self._t = [m.T.tocsr() for m in self.matrices]
-        self._rn = None
-        super().__init__(tuple(cube_shape), tuple(out_shape))
-
-    def _forward(self, x):
-        dt = np.float64 if x.dtype == np.float64 else np.float32
-        out = np.zeros(int(np.prod(self.oshape)), dtype=dt)
-        for l, m in enumerate(self.matrices):
-            out += m @ np.ascontiguousarray(x[l], dtype=dt).ravel()
-        return out.reshape(self.oshape)
-
-    def _adjoint(self, y):
-        dt = np.float64 if y.dtype == np.float64 else np.float32
-        yf = np.ascontiguousarray(y, dtype=dt).ravel()
-        out = np.empty(self.ishape, dtype=dt)
-        for l, mt in enumerate(self._t):
-            out[l] = (mt @ yf).reshape(self.ishape[1:])
-        return out
-
-    def row_norms_sq(self):
-        if self._rn is None:
-            acc = np.zeros(int(np.prod(self.oshape)), dtype=np.float64)
-            for m in self.matrices:
-                acc += np.asarray(m.multiply(m).sum(axis=1)).ravel()
-            self._rn = acc.reshape(self.oshape).astype(np.float32)
-        return self._rn
+        super().__init__(sp.hstack(list(matrices), format="csr"), cube_shape, out_shape)
 
     def __repr__(self):
         return f"TransportOperator({self.ishape} -> {self.oshape})"

@@ -2,15 +2,20 @@
 """What limits reconstruction from calibration? Calibrated vs exact operator under what-if
 instruments.
 
-The calibrated model (per-band mask images and one shift per band) trails the simulator's exact
-operator. This experiment re-renders the `small` design, its calibration captures and its
-exact operator with the transport sampled differently, and prints, for the natural scene and
-the ColorChecker, the PSNR reached with
+The default calibrated model (per-band mask images and one shift per band) trails the
+simulator's exact operator; the footprint model (every pixel's weights measured with comb
+targets) does not.  This experiment re-renders the `small` design, its calibration captures
+and its exact operator with the transport sampled differently, and prints, for the natural
+scene and the ColorChecker, the PSNR reached with
 
-- ``calibrated``: the product's operator, from the calibration captures only;
+- ``calibrated``: the product's default (shifted) operator, from the calibration captures only;
+- ``footprint``: the footprint model (``kaleidospec run --model footprint``), from the same
+  captures plus the comb captures, on the scenes' own grid;
 - ``exact``: the transport the frame was rendered with (:mod:`sim.oracle`).  With ``spp`` rays
   per pixel and band it holds *which* texel and wavelength each of those rays met: the
-  simulator's Monte Carlo draw, fixed per pixel, which no capture can reveal;
+  simulator's Monte Carlo draw, fixed per pixel.  Captures rendered through the same transport
+  see that draw as part of the instrument, as a lab's captures see a real pixel's response:
+  the comb captures measure it, the white captures only its sum over a footprint;
 - ``exact*``: the same optics traced again with another random seed (same ``spp``, same
   sampling): the instrument's physics without this frame's draw.  How far ``exact`` is above
   ``exact*`` is what knowing the draw is worth;
@@ -88,15 +93,16 @@ def run(a, scratch) -> None:
     from sim.design import get_design
 
     d = pipeline.design_for_views(get_design("small"), 5)
-    cal = pipeline.calibrate(d, progress=False, repeats=a.repeats)
+    cal = pipeline.calibrate(d, progress=False, repeats=a.repeats, footprint=True)
     counts = [int(v) for v in a.views.split(",")]
     exact = {n: pipeline.oracle_operator(d, n) for n in counts}
     retraced = {n: pipeline.oracle_operator(d, n, seed=a.trace_seed) for n in counts}
     geometry = transport_geometry(d, cal)
     print(f"sampling {a.sampling}, {a.spp} rays per pixel and band ({a.sampler}), {a.repeats} frames per "
           f"calibration capture; exact* traced with seed {a.trace_seed}")
-    print(f"{'scene':<13}{'views':>6}{'calibrated':>12}{'cal+geom':>10}{'exact':>8}{'exact*':>8}"
-          f"{'exact-cal':>11}{'exact*-cal':>12}{'model err':>11}")
+    print(f"{'scene':<13}{'views':>6}{'calibrated':>12}{'cal+geom':>10}{'footprint':>11}"
+          f"{'exact':>8}{'exact*':>8}{'exact-cal':>11}{'exact*-cal':>12}{'exact-fp':>10}"
+          f"{'model err':>11}{'fp err':>8}")
     scenes = [("natural", "natural"), ("colorchecker", "colorchecker")]
     if a.soften > 0:
         scenes += [(f"{name}~", softened(name, d, a.soften, scratch)) for name, _ in scenes[:2]]
@@ -105,27 +111,32 @@ def run(a, scratch) -> None:
         clean = pipeline.render_scene(source, d, seed=0, noise=False)
         for n in counts:
             _, cal_info = pipeline.reconstruct_views(frame, meta, cal, n, truth=truth, design=d)
+            _, fp_info = pipeline.reconstruct_views(frame, meta, cal, n, truth=truth, design=d,
+                                                    model="footprint")
             _, geo = reconstruct_with_geometry(pipeline, frame, meta, cal, geometry, n, truth)
             _, ora = pipeline.reconstruct_oracle(frame, meta, d, n, truth=truth, op=exact[n])
             _, ret = pipeline.reconstruct_oracle(frame, meta, d, n, truth=truth, op=retraced[n])
             c, g = cal_info["metrics"]["psnr"], geo["metrics"]["psnr"]
+            fp = fp_info["metrics"]["psnr"]
             o, r = ora["metrics"]["psnr"], ret["metrics"]["psnr"]
             err = model_error(pipeline, cal, d, clean, n)
-            print(f"{scene:<13}{n:>6}{c:>12.2f}{g:>10.2f}{o:>8.2f}{r:>8.2f}{o - c:>+11.2f}"
-                  f"{r - c:>+12.2f}{err:>10.1%}", flush=True)
+            fp_err = model_error(pipeline, cal, d, clean, n, "footprint")
+            print(f"{scene:<13}{n:>6}{c:>12.2f}{g:>10.2f}{fp:>11.2f}{o:>8.2f}{r:>8.2f}"
+                  f"{o - c:>+11.2f}{r - c:>+12.2f}{o - fp:>+10.2f}{err:>10.1%}{fp_err:>8.1%}",
+                  flush=True)
 
 
-def model_error(pipeline, cal, design, clean, n):
-    """||g - H f|| / ||g||: how far the calibrated operator H of ``n`` views misses a noise-free
-    frame g of the truth f (on the calibration's grid)."""
+def model_error(pipeline, cal, design, clean, n, model=None):
+    """||g - H f|| / ||g||: how far the calibrated ``model``'s operator H of ``n`` views misses a
+    noise-free frame g of the truth f (on that model's grid)."""
     import numpy as np
     from recon.calibration import measurements
 
     frame, meta, truth, _ = clean
     ids = pipeline.VIEW_ORDER[:n]
     g = measurements(frame, cal, ids, metadata=meta) / np.float32(meta["radiance_scale"])
-    f = pipeline.truth_on_grid(truth, design, cal).transpose(2, 0, 1)
-    m = pipeline.calibrated_operator(cal, ids).forward(np.ascontiguousarray(f))
+    f = pipeline.truth_on_grid(truth, design, cal, model).transpose(2, 0, 1)
+    m = pipeline.calibrated_operator(cal, ids, model).forward(np.ascontiguousarray(f))
     return float(np.linalg.norm(g - m) / np.linalg.norm(g))
 
 

@@ -16,9 +16,10 @@ issue's targets on the measured numbers and says which hold:
 * PSNR rises with the number of views (global PSNR, each step ≥ −0.1 dB, and overall);
 * 5 views beat 1 view by ≥ 3 dB on the natural scene and the ColorChecker;
 * with ``--oracle``: calibrated within 1 dB of the exact operator (the transport the frame was
-  rendered with); with ``--retrace SEED`` also of the same optics traced afresh with SEED (the
-  instrument's physics without the frame's Monte Carlo draw, see
-  ``tools/exp_calibration_gap.py``).
+  rendered with), for the model ``--model`` names: ``shifted`` (the default) or ``footprint``
+  (every pixel's weights measured with comb targets); with ``--retrace SEED`` also of the same
+  optics traced afresh with SEED (the instrument's physics without the frame's Monte Carlo
+  draw, see ``tools/exp_calibration_gap.py``).
 
 Outputs in ``--out`` (written atomically): ``exp_views.json`` (every number and the settings),
 ``exp_views.png`` (PSNR against views, both protocols, with the paper's curve) and
@@ -28,6 +29,7 @@ Usage::
 
     python3 tools/exp_views.py                         # small design, natural + colorchecker
     python3 tools/exp_views.py --views 1,2,3,5,9 --oracle --retrace 1
+    python3 tools/exp_views.py --views 1,2,3,5,9 --oracle --model footprint
     python3 tools/exp_views.py --scenes natural,my_cube.exr --iters 50 --out out/exp_views
     python3 tools/exp_views.py --design paper --set band_step_nm=25   # hours on 2 cores
 
@@ -149,7 +151,7 @@ def matplotlib_agg():
 
 # ---------------------------------------------------------------------------- the experiment
 def run_scene(scene: str, design, cal, views, *, solver, iters, tau, seed, noise, progress,
-              oracle=False, retrace=None):
+              oracle=False, retrace=None, model=None):
     """Render ``scene`` once and reconstruct it from each view count; returns (rows, images).
 
     With ``oracle`` each view count is also reconstructed from the same frame with the exact
@@ -165,9 +167,10 @@ def run_scene(scene: str, design, cal, views, *, solver, iters, tau, seed, noise
     rows, cubes = [], {}
     for n in views:
         cube, info = pipeline.reconstruct_views(frame, meta, cal, n, solver=solver, iters=iters,
-                                                tau=tau, truth=truth, progress=progress)
-        # The calibration's grid leaves out the guard stripe's columns: score against the truth
-        # moved onto that grid (info["truth_grid"]), not the design's square grid.
+                                                tau=tau, truth=truth, progress=progress,
+                                                model=model)
+        # The shifted model's grid leaves out the guard stripe's columns: score against the
+        # truth moved onto the model's grid (info["truth_grid"]), not the design's square grid.
         grid = info["truth_grid"]
         row = {"views": n, **metrics_of(cube, grid, wl), "seconds": float(info.get("seconds", 0.0)),
                "tau": finite(info.get("tau")), "iters": int(info.get("iters", iters))}
@@ -329,6 +332,8 @@ def main(argv=None) -> int:
     ap.add_argument("--retrace", type=int, default=None, metavar="SEED",
                     help="also reconstruct with the exact operator traced afresh with SEED "
                          "(the optics without the frame's Monte Carlo draw)")
+    ap.add_argument("--model", choices=("shifted", "footprint"), default="shifted",
+                    help="calibrated forward model (footprint: also the comb captures)")
     ap.add_argument("--progress", action="store_true")
     a = ap.parse_args(argv)
 
@@ -359,9 +364,9 @@ def main(argv=None) -> int:
     print(f"design {a.design} {' '.join(a.overrides)} (hash {design.hash}): "
           f"{design.view_size_px}×{design.view_size_px} px views, {design.n_bands} bands "
           f"{design.wavelengths[0]:g}–{design.wavelengths[-1]:g} nm; solver {a.solver}, "
-          f"{a.iters} iterations", flush=True)
+          f"{a.iters} iterations, {a.model} model", flush=True)
     t0 = time.perf_counter()
-    cal = pipeline.calibrate(design, progress=a.progress)
+    cal = pipeline.calibrate(design, progress=a.progress, footprint=a.model == "footprint")
     cal_s = time.perf_counter() - t0
     print(f"calibration ready in {cal_s:.1f} s", flush=True)
 
@@ -370,7 +375,7 @@ def main(argv=None) -> int:
         lab = scene_label(scene)
         res, imgs = run_scene(scene, design, cal, views, solver=a.solver, iters=a.iters,
                               tau=a.tau, seed=a.seed, noise=not a.no_noise, progress=a.progress,
-                              oracle=a.oracle, retrace=a.retrace)
+                              oracle=a.oracle, retrace=a.retrace, model=a.model)
         results[lab], images[lab] = res, imgs
 
     print_table(results, views)
@@ -388,7 +393,7 @@ def main(argv=None) -> int:
         "paper_fig7_psnr_db": PAPER_FIG7,
         "design": a.design, "overrides": a.overrides, "design_hash": design.hash,
         "view_size_px": design.view_size_px, "wavelengths_nm": design.wavelengths,
-        "solver": a.solver, "iters": a.iters, "tau": a.tau, "seed": a.seed,
+        "solver": a.solver, "iters": a.iters, "tau": a.tau, "seed": a.seed, "model": a.model,
         "noise": not a.no_noise, "views": views, "calibration_seconds": cal_s,
         "scenes": results, "targets": targets,
     })

@@ -17,13 +17,19 @@ DEFAULT_VIEWS = "1,2,3,5"
 
 def demo(
     out: Path = typer.Option(Path("kaleidospec-demo"), "--out", "-o", help="Output folder."),
+    model: str = typer.Option("shifted", "--model", help="Calibrated forward model: shifted "
+                              "or footprint (see kaleidospec run --help)."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress bars."),
 ) -> None:
     """Render the ColorChecker with the small design, calibrate, reconstruct, report."""
     from kaleidospec import pipeline
+    from kaleidospec.commands.run import RUN_MODELS
+    from recon.errors import InputError
     from sim.design import get_design
 
+    if model not in RUN_MODELS:
+        raise InputError(f"--model must be one of {', '.join(RUN_MODELS)}, got {model!r}")
     d = pipeline.design_for_views(get_design("small"), 5)
     pipeline.run(DEFAULT_SCENE, d, out, views=pipeline.parse_views(DEFAULT_VIEWS),
-                 progress=progress, oracle=False, log=typer.echo)
+                 progress=progress, oracle=False, log=typer.echo, model=model)
     typer.echo(f"wrote {out}/")

@@ -14,7 +14,13 @@ model :class:`recon.operators.smeared.SmearedCassi`
 :math:`M_k` the view masks and :math:`D_{k,l}` the bands' smear kernels.  The shifted-mask model
 multiplies a smeared mask image by a shifted scene, while the instrument masks the scene first
 and then smears each band over its dispersion; where the scene varies within a band's smear
-(a few pixels for 25 nm bands in the blue) only the second is right.
+(a few pixels for 25 nm bands in the blue) only the second is right.  The "footprint" model
+is the system matrix measured with comb targets (:mod:`recon.calibration.footprint`),
+
+.. math:: g = A f, \qquad f \text{ on the target's texel grid } (H_t, W_t),
+
+with every pixel's own weights on the texels it sees: it needs no geometry or smear model, but
+its cube lives on the comb target's grid, not on the centre view's.
 :func:`measurements` cuts the matching (K, Hv, Wm) stack out of a raw frame with the same boxes.
 """
 
@@ -38,19 +44,24 @@ def _select(cal: Calibration, view_ids) -> list[int]:
     return [cal.view_ids.index(v) for v in ids]
 
 
-#: The calibrated forward models: "smeared" (mask, then shift and smear) and "shifted" (per-band
-#: mask images times the shifted scene); "auto" is "smeared" when the calibration holds it.
-MODELS = ("auto", "smeared", "shifted")
+#: The calibrated forward models: "footprint" (the system matrix measured with comb targets),
+#: "smeared" (mask, then shift and smear) and "shifted" (per-band mask images times the
+#: shifted scene); "auto" is the first of these that the calibration holds.
+MODELS = ("auto", "footprint", "smeared", "shifted")
 
 
 def resolve_model(cal: Calibration, model: str = "auto") -> str:
-    """``"smeared"`` or ``"shifted"``: the model ``model`` names for this calibration."""
+    """``"footprint"``, ``"smeared"`` or ``"shifted"``: the model ``model`` names for this
+    calibration."""
     if not isinstance(cal, Calibration):
         raise InputError(f"expected a Calibration, got {type(cal).__name__}")
     if model not in MODELS:
         raise InputError(f"the calibrated model must be one of {', '.join(MODELS)}, got {model!r}")
     if model == "auto":
-        return "smeared" if cal.has_smeared else "shifted"
+        return "footprint" if cal.has_footprint else "smeared" if cal.has_smeared else "shifted"
+    if model == "footprint" and not cal.has_footprint:
+        raise InputError("the calibration has no footprint matrix: recalibrate with the comb "
+                         "captures (kaleidospec: --model footprint), or use another model")
     if model == "smeared" and not cal.has_smeared:
         raise InputError("the calibration has no view masks and smear kernels (made by older "
                          "code): recalibrate, or use the 'shifted' model")
@@ -66,18 +77,20 @@ def operator_from_calibration(cal: Calibration, view_ids=None, model: str = "aut
     cal : Calibration
     view_ids : sequence of int, optional
         Views to use, in this order (default: all of the calibration's).
-    model : {"auto", "smeared", "shifted"}
+    model : {"auto", "footprint", "smeared", "shifted"}
         See :data:`MODELS` and the module docstring.
     band_scale : (L,) array_like, optional
         Multiplies band ``l`` of the model (e.g. the inverse radiometric gains).
 
     Returns
     -------
-    recon.operators.SmearedCassi or recon.operators.CalibratedCassi
-        ``(L, H, W) -> (K, Hv, Wm)`` with ``(H, W, L) = cal.cube_shape``.
+    recon.operators.SparseMatrixOperator, SmearedCassi or CalibratedCassi
+        ``(L, H, W) -> (K, Hv, Wm)`` with ``(H, W, L) = cal.cube_shape``, or
+        ``(H, W) = cal.footprint_grid`` for the footprint model.
     """
     from recon.operators.calibrated import CalibratedCassi
     from recon.operators.smeared import SmearedCassi
+    from recon.operators.sparse import SparseMatrixOperator
     from recon.operators.warp import HomographyWarp
 
     idx = _select(cal, view_ids)
@@ -87,6 +100,13 @@ def operator_from_calibration(cal: Calibration, view_ids=None, model: str = "aut
     scale = np.ones(n_bands) if band_scale is None else np.asarray(band_scale, np.float64)
     if scale.shape != (n_bands,) or not np.all(np.isfinite(scale)):
         raise InputError(f"band_scale must be {n_bands} finite numbers")
+    if kind == "footprint":
+        ht, wt = (int(v) for v in cal.footprint_grid)
+        a = cal.footprint_rows(idx)
+        # Band l's columns are l·Ht·Wt ... (l+1)·Ht·Wt - 1: scale each weight by its band's.
+        a.data *= scale[a.indices // (ht * wt)].astype(np.float32)
+        return SparseMatrixOperator(a, (n_bands, ht, wt),
+                                    (len(idx),) + tuple(cal.view_boxes[0, 2:]))
     warps = []
     for i in idx:
         m = cal.homographies[i]

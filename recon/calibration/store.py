@@ -21,6 +21,17 @@ view_masks       (K, Hv, Wv) f32     every view's mask in view coordinates
 smear_gains      (L,) float64        radiometric gains of that model
 ===============  ==================  ===========================================================
 
+and, optionally (the footprint model, :mod:`~recon.calibration.footprint`: a sparse system
+matrix :math:`A`, rows the boxes' pixels view-major, columns the target's texels band-major),
+
+=================  ================  =========================================================
+footprint_grid     (2,) int64        the target's texel grid (Ht, Wt): that model's cube grid
+footprint_indptr   (K·Hv·Wm+1,) i64  CSR row pointers of :math:`A`
+footprint_indices  (nnz,) int32      CSR columns, :math:`l H_t W_t + y W_t + x`
+footprint_data     (nnz,) float32    the weights, >= 0
+footprint_gains    (L,) float64      radiometric gains of that model
+=================  ================  =========================================================
+
 and ``<name>.json`` holds ``design_hash``, ``cube_shape`` ([H, W, L], the API layout),
 ``view_ids``, ``captures`` (what it was made from) and ``created`` (UTC, ISO 8601).  Both files
 are written atomically (image first, then sidecar); loading validates every field and shape.
@@ -51,7 +62,10 @@ CODE_VERSION = 5
 _CODE_VERSION: str | None = None
 ARRAY_FIELDS = ("view_boxes", "homographies", "mask_images", "offsets", "gains", "wavelengths")
 #: Arrays a calibration may hold (saved only when set).
-OPTIONAL_ARRAY_FIELDS = ("tap_start", "tap_weights", "view_masks", "smear_gains")
+OPTIONAL_ARRAY_FIELDS = ("tap_start", "tap_weights", "view_masks", "smear_gains",
+                         "footprint_grid", "footprint_indptr", "footprint_indices",
+                         "footprint_data", "footprint_gains")
+_FOOTPRINT = ("footprint_grid", "footprint_indptr", "footprint_indices", "footprint_data")
 JSON_FIELDS = ("design_hash", "cube_shape", "view_ids", "captures", "created")
 _HASH_RE = re.compile(r"^[0-9A-Za-z_-]{1,128}$")
 #: Same tolerance as the operators' offset snapping.
@@ -80,6 +94,11 @@ class Calibration:
     tap_weights: np.ndarray | None = None
     view_masks: np.ndarray | None = None
     smear_gains: np.ndarray | None = None
+    footprint_grid: np.ndarray | None = None
+    footprint_indptr: np.ndarray | None = None
+    footprint_indices: np.ndarray | None = None
+    footprint_data: np.ndarray | None = None
+    footprint_gains: np.ndarray | None = None
 
     def __post_init__(self):
         self.view_ids = check_view_ids(self.view_ids)
@@ -111,6 +130,7 @@ class Calibration:
             self.design_hash = check_hash(self.design_hash)
         self.captures = [str(c) for c in self.captures]
         self._check_smeared()
+        self._check_footprint()
         if not self.created:
             self.created = datetime.now(timezone.utc).isoformat(timespec="seconds")
 
@@ -143,6 +163,58 @@ class Calibration:
             self.view_masks = _array(self.view_masks, "view_masks", np.float32, (k, hv, wv))
         if self.smear_gains is not None:
             self.smear_gains = _array(self.smear_gains, "smear_gains", np.float64, (n_bands,))
+
+    def _check_footprint(self) -> None:
+        given = [getattr(self, n) is not None for n in _FOOTPRINT]
+        if not any(given):
+            if self.footprint_gains is not None:
+                raise InputError("footprint_gains needs the footprint matrix")
+            return
+        if not all(given):
+            raise InputError(f"{', '.join(_FOOTPRINT)} come together")
+        grid = _array(self.footprint_grid, "footprint_grid", np.int64, (2,))
+        if np.min(grid) < 1:
+            raise InputError(f"footprint_grid must be positive, got {grid.tolist()}")
+        self.footprint_grid = grid
+        k, n_bands = self.offsets.shape
+        n_rows = k * int(self.view_boxes[0, 2]) * int(self.view_boxes[0, 3])
+        ptr = _array(self.footprint_indptr, "footprint_indptr", np.int64, (n_rows + 1,))
+        n_cols = n_bands * int(grid[0]) * int(grid[1])
+        if n_cols > np.iinfo(np.int32).max:
+            raise InputError(f"a footprint matrix of {n_cols} columns is too large")
+        # int32 columns (as scipy's own CSR): half the file of int64.
+        idx = _array(self.footprint_indices, "footprint_indices", np.int64, None, ndim=1)
+        data = _array(self.footprint_data, "footprint_data", np.float32, idx.shape)
+        if ptr[0] != 0 or ptr[-1] != idx.size or np.any(np.diff(ptr) < 0):
+            raise InputError("footprint_indptr must rise from 0 to the number of weights")
+        if idx.size and (idx.min() < 0 or idx.max() >= n_cols):
+            raise InputError(f"footprint_indices must lie in [0, {n_cols})")
+        idx = idx.astype(np.int32)
+        if np.any(data < 0):
+            raise InputError("footprint_data must be >= 0")
+        self.footprint_indptr, self.footprint_indices, self.footprint_data = ptr, idx, data
+        if self.footprint_gains is not None:
+            self.footprint_gains = _array(self.footprint_gains, "footprint_gains", np.float64,
+                                          (n_bands,))
+
+    @property
+    def has_footprint(self) -> bool:
+        """Whether the footprint model's system matrix is present."""
+        return self.footprint_indptr is not None
+
+    def footprint_rows(self, index) -> "scipy.sparse.csr_matrix":
+        """The footprint matrix's rows of the views at positions ``index`` (in that order),
+        ``(len(index)·Hv·Wm, L·Ht·Wt)`` float32 CSR."""
+        import scipy.sparse as sp
+
+        if not self.has_footprint:
+            raise InputError("the calibration has no footprint matrix (calibrate with the "
+                             "comb captures)")
+        n_px = int(self.view_boxes[0, 2]) * int(self.view_boxes[0, 3])
+        n_cols = self.n_bands * int(self.footprint_grid[0]) * int(self.footprint_grid[1])
+        m = sp.csr_matrix((self.footprint_data, self.footprint_indices, self.footprint_indptr),
+                          shape=(self.n_views * n_px, n_cols))
+        return sp.vstack([m[i * n_px:(i + 1) * n_px] for i in index], format="csr")
 
     @property
     def has_smeared(self) -> bool:

@@ -10,13 +10,14 @@ from recon.operators.cassi import CassiOperator, View, kaleidoscope_cassi, stand
 from recon.operators.dispersion import Dispersion
 from recon.operators.mask import MaskModulation
 from recon.operators.smeared import SmearedCassi, taps_from_positions
+from recon.operators.sparse import SparseMatrixOperator
 from recon.operators.warp import Flip, HomographyWarp, Identity, Translate, Warp, WarpOperator
 
 __all__ = [
     "LinearOperator", "MatrixOperator", "ScaledOperator", "dot_test",
     "View", "CassiOperator", "standard_cassi", "kaleidoscope_cassi", "CalibratedCassi",
     "BandWarpCassi",
-    "SmearedCassi", "taps_from_positions",
+    "SmearedCassi", "taps_from_positions", "SparseMatrixOperator",
     "Dispersion", "MaskModulation",
     "Warp", "Identity", "Flip", "Translate", "HomographyWarp", "WarpOperator",
 ]

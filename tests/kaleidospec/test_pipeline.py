@@ -126,6 +126,42 @@ def test_calibrated_is_within_1db_of_the_retraced_exact_operator(setup):
         (oinfo["metrics"]["psnr"], info["metrics"]["psnr"])
 
 
+@pytest.fixture(scope="module")
+def footprint_cal(setup):
+    pipeline, d, *_ = setup
+    return pipeline.calibrate(d, progress=False, footprint=True)
+
+
+def test_footprint_model_is_within_1db_of_the_exact_operator(setup, footprint_cal):
+    """The issue's target: the footprint model, measured with comb captures, reconstructs within
+    1 dB of the exact operator (the transport the frame was rendered with) with 1 and 5 views,
+    where the shifted model trails it by ~11 dB at 5 views (ORACLE_MARGIN_DB)."""
+    pipeline, d, cal, frame, meta, truth, wl = setup
+    for n in (1, 5):
+        cube, info = pipeline.reconstruct_views(frame, meta, footprint_cal, n, truth=truth,
+                                                model="footprint")
+        assert cube.shape == truth.shape                 # the comb target's grid is the scene's
+        assert info["truth_grid"] is truth or np.array_equal(info["truth_grid"], truth)
+        _, oinfo = pipeline.reconstruct_oracle(frame, meta, d, n, truth=truth)
+        assert info["metrics"]["psnr"] > oinfo["metrics"]["psnr"] - 1.0, \
+            (n, oinfo["metrics"]["psnr"], info["metrics"]["psnr"])
+
+
+def test_footprint_calibration_is_cached_with_its_own_gains(setup, footprint_cal, cache):
+    pipeline, d, cal, *_ = setup
+    # The cached file now holds both models; asking without footprints reuses it.
+    again = pipeline.calibrate(d, progress=False)
+    assert again.has_footprint and again.footprint_data.size == footprint_cal.footprint_data.size
+    assert pipeline.model_of(again) == "shifted"            # the default model is unchanged
+    g = footprint_cal.footprint_gains
+    # The comb captures are divided by the lit texel's radiance: the ColorChecker refit moves
+    # the gains by a few % only.
+    assert np.all(np.abs(g - 1.0) < 0.1), g
+    assert pipeline.grid_offset(d, footprint_cal, "footprint") == (0.0, 0.0)
+    assert pipeline.cube_grid(footprint_cal, "footprint") == (d.view_size_px,) * 2
+    assert len(pipeline.colorchecker_patches(d, footprint_cal, "footprint")) == 24
+
+
 def test_bad_input(setup):
     pipeline, d, cal, frame, meta, truth, wl = setup
     with pytest.raises(InputError, match="design"):

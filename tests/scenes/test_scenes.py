@@ -155,3 +155,22 @@ def test_bad_input_raises_input_error(args, kw):
     kw.setdefault("wavelengths", WL)
     with pytest.raises(InputError):
         get_scene(*args, **kw)
+
+
+def test_comb_phases_light_every_texel_exactly_once():
+    from scenes.calibration import comb
+
+    total = sum(comb((10, 13), WL, period=(3, 5), phase=(a, b))
+                for a in range(3) for b in range(5))
+    np.testing.assert_allclose(total, get_scene("white", shape=(10, 13), wavelengths=WL)[0])
+    one = comb((10, 13), WL, period=(3, 5), phase=(1, 2))[:, :, 0]
+    assert set(zip(*np.nonzero(one))) == {(y, x) for y in (1, 4, 7) for x in (2, 7, 12)}
+
+
+@pytest.mark.parametrize("kw", [dict(period=(0, 5)), dict(period=(3, 20)), dict(phase=(3, 0)),
+                                dict(phase=(0, -1)), dict(period="ab"), dict(reflectance=0)])
+def test_comb_rejects_bad_input(kw):
+    from scenes.calibration import comb
+
+    with pytest.raises(InputError):
+        comb((10, 13), WL, **kw)

@@ -175,3 +175,40 @@ def test_model_selection_smeared_and_shifted():
         b = operator_from_calibration(full, model=model, band_scale=scale)
         np.testing.assert_allclose(b.forward(x), a.forward(x * scale[:, None, None]),
                                    rtol=1e-5, atol=1e-6)
+
+
+def test_footprint_model_is_its_matrix_rows_with_the_band_scale():
+    import dataclasses
+
+    import scipy.sparse as sp
+
+    from recon.calibration.operator import operator_from_calibration, resolve_model
+    from recon.operators import SparseMatrixOperator
+
+    rng = np.random.default_rng(22)
+    k, n_bands, hv, wm = 2, 3, 6, 10
+    phi = np.array([[0.0, 1.0, 2.0]] * k)
+    cal = build_calibration(
+        view_ids=(0, 1), view_boxes=[(0, 12, hv, wm), (0, 0, hv, wm)],
+        box_homographies=np.stack([np.eye(3)] * 2), mask_images=rng.random((k, n_bands, hv, wm)),
+        wavelengths=[450.0, 550.0, 650.0], dispersion=phi, checker_dispersion=phi[:, 1])
+    with pytest.raises(InputError, match="comb"):
+        operator_from_calibration(cal, model="footprint")
+    grid = (5, 8)
+    a = sp.random(k * hv * wm, n_bands * grid[0] * grid[1], density=0.05, random_state=rng,
+                  format="csr", dtype=np.float32)
+    fp = dataclasses.replace(cal, footprint_grid=np.array(grid), footprint_indptr=a.indptr,
+                             footprint_indices=a.indices, footprint_data=a.data)
+    assert resolve_model(fp, "auto") == "footprint"
+    scale = np.array([0.5, 2.0, 1.5])
+    op = operator_from_calibration(fp, (1, 0), model="footprint", band_scale=scale)
+    assert isinstance(op, SparseMatrixOperator)
+    assert op.ishape == (n_bands,) + grid and op.oshape == (2, hv, wm)
+    assert dot_test(op, rng) < 1e-6
+    x = rng.random(op.ishape)
+    dense = a.toarray()
+    n = hv * wm
+    want = np.vstack([dense[n:], dense[:n]]) @ (x * scale[:, None, None]).ravel()
+    np.testing.assert_allclose(op.forward(x).ravel(), want, rtol=1e-5, atol=1e-6)
+    # The calibration's own weights are untouched by the scale.
+    np.testing.assert_array_equal(fp.footprint_data, a.data)

@@ -235,3 +235,71 @@ def test_band_positions_sample_each_band_evenly():
         band_positions(fit, iv[:, ::-1])
     with pytest.raises(InputError):
         band_positions(fit, iv, samples=0)
+
+
+def _with_footprint(cal, rng, grid=(6, 7)):
+    """``cal`` with a random footprint matrix (rows: the boxes' pixels, columns: the texels)."""
+    import dataclasses
+
+    import scipy.sparse as sp
+
+    n_rows = cal.n_views * int(cal.view_boxes[0, 2]) * int(cal.view_boxes[0, 3])
+    a = sp.random(n_rows, cal.n_bands * grid[0] * grid[1], density=0.01, random_state=rng,
+                  format="csr", dtype=np.float32)
+    return dataclasses.replace(cal, footprint_grid=np.array(grid), footprint_indptr=a.indptr,
+                               footprint_indices=a.indices, footprint_data=a.data,
+                               footprint_gains=np.full(cal.n_bands, 1.1)), a
+
+
+def test_footprint_fields_saved_selected_and_optional(tmp_path):
+    rng = np.random.default_rng(7)
+    cal, a = _with_footprint(_cal(rng), rng)
+    assert cal.has_footprint and not _cal(rng).has_footprint
+    save_calibration(tmp_path / "cal", cal)
+    back = load_calibration(tmp_path / "cal")
+    assert back.has_footprint
+    np.testing.assert_array_equal(back.footprint_grid, [6, 7])
+    np.testing.assert_array_equal(back.footprint_gains, cal.footprint_gains)
+    # Rows of views 2 and 0, in that order.
+    n_px = 20 * 30
+    dense = a.toarray()
+    np.testing.assert_array_equal(back.footprint_rows([2, 0]).toarray(),
+                                  np.vstack([dense[2 * n_px:3 * n_px], dense[:n_px]]))
+    with pytest.raises(InputError, match="no footprint"):
+        _cal(rng).footprint_rows([0])
+
+
+@pytest.mark.parametrize("change, match", [
+    (dict(footprint_data=None), "come together"),
+    (dict(footprint_grid=[0, 7]), "positive"),
+    (dict(footprint_indptr=np.zeros(5, np.int64)), "footprint_indptr"),
+    (dict(footprint_gains=np.ones(3)), "footprint_gains"),
+])
+def test_footprint_validation(change, match):
+    import dataclasses
+
+    rng = np.random.default_rng(8)
+    cal, _ = _with_footprint(_cal(rng), rng)
+    with pytest.raises(InputError, match=match):
+        dataclasses.replace(cal, **change)
+
+
+def test_footprint_weights_must_be_non_negative_and_on_the_grid():
+    import dataclasses
+
+    rng = np.random.default_rng(9)
+    cal, _ = _with_footprint(_cal(rng), rng)
+    data = cal.footprint_data.copy()
+    data[0] = -1.0
+    with pytest.raises(InputError, match=">= 0"):
+        dataclasses.replace(cal, footprint_data=data)
+    idx = cal.footprint_indices.copy()
+    idx[0] = 4 * 6 * 7
+    with pytest.raises(InputError, match="lie in"):
+        dataclasses.replace(cal, footprint_indices=idx)
+    ptr = cal.footprint_indptr.copy()
+    ptr[1], ptr[2] = ptr[2] + 1, ptr[1]
+    with pytest.raises(InputError, match="rise"):
+        dataclasses.replace(cal, footprint_indptr=ptr)
+    with pytest.raises(InputError, match="needs the footprint"):
+        dataclasses.replace(_cal(rng), footprint_gains=np.ones(4))
