@@ -38,10 +38,15 @@ of the product.  A temporary cache folder keeps the product's caches clean.
   ``sobol`` stratifies them, :func:`sim.transport.pixel_samples`);
 - ``--repeats N``: noisy frames averaged per calibration capture (0: noise-free captures);
 - ``--soften SIGMA``: also reconstruct both scenes blurred by a Gaussian of SIGMA texels
-  (rows ``natural~``, ``colorchecker~``): the same content without the sharp edges.
+  (rows ``natural~``, ``colorchecker~``): the same content without the sharp edges;
+- ``--period PY,PX`` and ``--floor F``: the footprint model's comb period (instead of
+  :func:`recon.calibration.footprint.comb_period`'s) and weight floor (instead of
+  :data:`~recon.calibration.footprint.FOOTPRINT_FLOOR`), with the number of weights kept;
+- ``--set FIELD=VALUE``: another design than `small`'s defaults (e.g. ``band_step_nm=50``).
 
 Usage: python3 tools/exp_calibration_gap.py [--sampling box|centre] [--spp 4]
-       [--sampler independent|sobol] [--views 1,3,5] [--soften SIGMA]
+       [--sampler independent|sobol] [--views 1,3,5] [--soften SIGMA] [--period PY,PX]
+       [--floor F] [--set FIELD=VALUE ...]
 """
 
 from __future__ import annotations
@@ -63,6 +68,10 @@ def main() -> None:
                     help="also reconstruct the scenes blurred by a Gaussian of this many texels")
     ap.add_argument("--trace-seed", type=int, default=1,
                     help="random seed of the second exact operator's trace (the frame's is 0)")
+    ap.add_argument("--period", default=None, help="comb period PY,PX of the footprint model")
+    ap.add_argument("--floor", type=float, default=None, help="footprint weight floor")
+    ap.add_argument("--set", dest="overrides", action="append", default=[],
+                    metavar="FIELD=VALUE", help="design override (repeatable)")
     a = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="kaleidospec-gap-") as cache:
         os.environ["KALEIDOSPEC_CACHE"] = cache
@@ -88,18 +97,20 @@ def run(a, scratch) -> None:
 
     transport.load_or_build = what_if
     transport.band_intervals = what_if_intervals
+    what_if_footprints(a)
 
     from kaleidospec import pipeline
-    from sim.design import get_design
+    from sim.design import get_design, parse_overrides
 
-    d = pipeline.design_for_views(get_design("small"), 5)
+    d = pipeline.design_for_views(get_design("small", parse_overrides(a.overrides)), 5)
     cal = pipeline.calibrate(d, progress=False, repeats=a.repeats, footprint=True)
     counts = [int(v) for v in a.views.split(",")]
     exact = {n: pipeline.oracle_operator(d, n) for n in counts}
     retraced = {n: pipeline.oracle_operator(d, n, seed=a.trace_seed) for n in counts}
     geometry = transport_geometry(d, cal)
     print(f"sampling {a.sampling}, {a.spp} rays per pixel and band ({a.sampler}), {a.repeats} frames per "
-          f"calibration capture; exact* traced with seed {a.trace_seed}")
+          f"calibration capture; exact* traced with seed {a.trace_seed}; footprint model: "
+          f"{cal.footprint_data.size / 1e6:.1f} M weights")
     print(f"{'scene':<13}{'views':>6}{'calibrated':>12}{'cal+geom':>10}{'footprint':>11}"
           f"{'exact':>8}{'exact*':>8}{'exact-cal':>11}{'exact*-cal':>12}{'exact-fp':>10}"
           f"{'model err':>11}{'fp err':>8}")
@@ -124,6 +135,18 @@ def run(a, scratch) -> None:
             print(f"{scene:<13}{n:>6}{c:>12.2f}{g:>10.2f}{fp:>11.2f}{o:>8.2f}{r:>8.2f}"
                   f"{o - c:>+11.2f}{r - c:>+12.2f}{o - fp:>+10.2f}{err:>10.1%}{fp_err:>8.1%}",
                   flush=True)
+
+
+def what_if_footprints(a) -> None:
+    """Apply ``--period`` and ``--floor`` to the footprint calibration the pipeline runs."""
+    import recon.calibration.footprint as footprint
+
+    if a.period is not None:
+        period = tuple(int(v) for v in a.period.split(","))
+        footprint.comb_period = lambda smear_px, airy_radius_px=0.0: period
+    if a.floor is not None:
+        decode = footprint.footprint_matrix
+        footprint.footprint_matrix = lambda *args, **kw: decode(*args, **dict(kw, floor=a.floor))
 
 
 def model_error(pipeline, cal, design, clean, n, model=None):
