@@ -27,12 +27,10 @@ def demo(
 ) -> None:
     """Render the ColorChecker with the small design, calibrate, reconstruct, report."""
     from kaleidospec import pipeline
-    from kaleidospec.commands.run import RUN_MODELS
-    from recon.errors import InputError
+    from kaleidospec.commands.run import check_model
     from sim.design import get_design
 
-    if model not in RUN_MODELS:
-        raise InputError(f"--model must be one of {', '.join(RUN_MODELS)}, got {model!r}")
+    check_model(model)
     d = pipeline.design_for_views(get_design("small"), 5)
     pipeline.run(DEFAULT_SCENE, d, out, views=pipeline.parse_views(DEFAULT_VIEWS),
                  progress=progress, oracle=False, log=typer.echo, model=model)

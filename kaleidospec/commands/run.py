@@ -18,6 +18,15 @@ import typer
 RUN_MODELS = ("shifted", "footprint")
 
 
+def check_model(model: str) -> None:
+    """Raise :class:`recon.errors.InputError` unless ``--model`` names one of
+    :data:`RUN_MODELS`."""
+    from recon.errors import InputError
+
+    if model not in RUN_MODELS:
+        raise InputError(f"--model must be one of {', '.join(RUN_MODELS)}, got {model!r}")
+
+
 def run(
     scene: str = typer.Option(..., "--scene", help="Built-in scene name or a cube file."),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder."),
@@ -53,8 +62,7 @@ def run(
         raise InputError(f"--solver must be one of {', '.join(solver_names())}, got {solver!r}")
     if iters < 1:
         raise InputError(f"--iters must be >= 1, got {iters}")
-    if model not in RUN_MODELS:
-        raise InputError(f"--model must be one of {', '.join(RUN_MODELS)}, got {model!r}")
+    check_model(model)
     if tau is not None and not tau >= 0:
         raise InputError(f"--tau must be >= 0, got {tau}")
     counts = pipeline.parse_views(views)
