@@ -156,8 +156,8 @@ def calibrate_from_captures(design, *, repeats: int = 4, progress: bool = False,
     from recon.calibration.dispersion import band_mean_positions, band_positions
     from recon.calibration.footprint import comb_period
     from recon.calibration.mask import view_masks, view_stack, white_levels
+    from sim.bands import band_intervals
     from sim.captures import CHECKER_NM, render_captures
-    from sim.transport import band_intervals
 
     if captures is None:
         captures = render_captures(design, repeats=repeats, progress=progress)
@@ -317,6 +317,11 @@ def render_scene(scene, design, *, seed: int = 0, noise: bool = True, angle_deg=
                  radiance_scale=None, **scene_params):
     """Render the raw frame of a built-in scene or a cube file.
 
+    The frame is independent of every calibration capture: the scene is built at
+    :data:`sim.frame.SCENE_OVERSAMPLE` times the reconstruction grid (a cube file keeps its own
+    resolution), so it carries detail no reconstruction grid holds, and it goes through the
+    transport traced with the scene frames' own seed (:data:`sim.transport.SEEDS`).
+
     Parameters
     ----------
     scene : str or path
@@ -339,18 +344,17 @@ def render_scene(scene, design, *, seed: int = 0, noise: bool = True, angle_deg=
     metadata : dict
         The sidecar (``design_hash``, ``radiance_scale``, ``scene``, ...).
     truth : (v, v, L) float32
-        The scene on the centre view's grid (:func:`sim.frame.ground_truth`); see
+        The scene averaged onto the centre view's grid (:func:`sim.frame.ground_truth`); see
         :func:`truth_on_grid` for the reconstruction grid.
     wavelengths : (L,) float64
     """
     from scenes.registry import get_scene
-    from sim.frame import ground_truth, simulate_frame
+    from sim.frame import ground_truth, scene_grid, simulate_frame
 
     if angle_deg is not None:
         scene_params["angle_deg"] = angle_deg
-    v = design.view_size_px
-    cube, wl = get_scene(str(scene), shape=(v, v), wavelengths=design.wavelengths,
-                         **scene_params)
+    cube, wl = get_scene(str(scene), shape=scene_grid(design, scene),
+                         wavelengths=design.wavelengths, **scene_params)
     frame, meta = simulate_frame(design, cube, wl, seed=seed, noise=noise,
                                  radiance_scale=radiance_scale)
     meta["scene"] = str(scene)
@@ -413,7 +417,7 @@ def band_mean_dispersion(design, wavelengths) -> np.ndarray:
     r"""(L,) the design's dispersion :math:`\varphi` averaged over every band's interval (px),
     the counterpart of :func:`recon.calibration.band_mean_positions`."""
     from recon.calibration.dispersion import band_wavelengths
-    from sim.transport import band_intervals
+    from sim.bands import band_intervals
 
     lam = band_wavelengths(band_intervals(design, np.asarray(wavelengths, dtype=np.float64)),
                            SMEAR_SAMPLES)
@@ -475,6 +479,10 @@ def unit_row_scale(op) -> float:
     whatever the exposure units of :math:`H`, so one TV weight :math:`\tau` serves the
     calibrated and the exact operator, the ``small`` and the ``paper`` design.
     """
+    mean = getattr(op, "mean_row_norm_sq", None)
+    if mean is not None:        # the exact operator estimates it (its row norms are costly)
+        m = float(mean())
+        return 1.0 if m <= 0 else 1.0 / math.sqrt(m)
     rn = np.asarray(op.row_norms_sq(), dtype=np.float64)
     pos = rn[rn > 0]
     return 1.0 if pos.size == 0 else 1.0 / math.sqrt(float(pos.mean()))
@@ -578,9 +586,9 @@ def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = DEFAULTS["
     return cube, info
 
 
-def oracle_operator(design, n_views: int, *, inversion: bool = True, seed: int = 0):
-    """The exact operator of ``design`` on the ground-truth grid (:mod:`sim.oracle`); ``seed``
-    other than 0 traces the optics afresh instead of reusing the frames' transport."""
+def oracle_operator(design, n_views: int, *, inversion: bool = True, seed: int | None = None):
+    """The converged exact operator of ``design`` on the ground-truth grid (:mod:`sim.oracle`),
+    traced with its own seed (another ``seed`` traces another realisation of the optics)."""
     from sim.oracle import oracle_operator as _op
 
     return _op(design, n_views, inversion=inversion, seed=seed)

@@ -1,9 +1,8 @@
 r"""Hyperspectral video (x, y, λ, t): dynamic scenes rendered and reconstructed frame by frame.
 
 Rendering.  The optics are linear and static, so a sequence reuses the design's transport
-cache (:mod:`sim.transport`): :class:`FrameRenderer` loads it once and each frame is only the
-gather :math:`E_l = A_l f_l`, the sensor's per-band QE, band width and Airy blur (a small
-direct convolution with the kernels computed once), and the shot/read noise draw.  Every frame
+(:mod:`sim.transport`): :class:`FrameRenderer` loads it once and each frame is only its pixel
+integrals, the sensor's per-band QE, band width and Airy blur, and the shot/read noise draw.  Every frame
 of a sequence shares one exposure (``radiance_scale``, fixed from frame 0 unless given), as a
 video camera at a fixed shutter and gain would, so brightness does not flicker.
 
@@ -56,10 +55,6 @@ __all__ = [
     "reconstruct_sequence", "sector_colour_errors", "write_summary", "write_video",
     "run_video", "SegmentReconstructor",
 ]
-
-_H = 6.62607015e-34
-_C = 2.99792458e8
-
 
 # ---------------------------------------------------------------------------------------------
 # files
@@ -121,28 +116,21 @@ def _write_json(path: Path, obj) -> None:
 # rendering
 # ---------------------------------------------------------------------------------------------
 class FrameRenderer:
-    r"""Raw frames of one design and cube shape from the transport cache.
+    r"""Raw frames of one design from its transport: :class:`sim.frame.FrameModel` (the exact
+    pixel integrals, each band's Airy blur and the sensor's photo-electrons) and a noise draw.
 
-    The mean photo-electron count of a pixel is (:mod:`sim.sensor`)
-
-    .. math:: \bar N_e = s \sum_l c_l\, (K_l * A_l f_l), \qquad
-              c_l = \eta(\lambda_l)\,\frac{\lambda_l}{hc}\,A_{px}\,t\,\Delta\lambda_l,
-
-    with :math:`A_l` the band's transport (:meth:`sim.transport.Transport.apply`), :math:`K_l`
-    its Airy kernel, :math:`s` the radiance scale (exposure); the frame is then
-    :func:`sim.sensor.digitise` of it.  Everything but the gather, the convolution and the noise
-    is computed once in the constructor; this matches :func:`sim.frame.simulate_frame` with the
-    transport method (the tests check it).
+    The mean photo-electron count of a pixel is :math:`s\,\bar N_e` with :math:`s` the
+    radiance scale (exposure); the frame is :func:`sim.sensor.digitise` of it.  The transport
+    is the scene frames' (:data:`sim.transport.SEEDS`), loaded once; this matches
+    :func:`sim.frame.simulate_frame` (the tests check it).
 
     Parameters
     ----------
     design : sim.design.Design
     shape : (H, W)
-        Cube shape on the diffuser.
+        The scene cubes' grid (any resolution).
     wavelengths : array (L,), optional
         Bands of the design (all by default).
-    spp : int
-        Samples per pixel of the transport (4, as :func:`sim.frame.simulate_frame`).
     sampling : {"box", "centre"}
     diffraction : bool
         Airy blur per band.
@@ -150,54 +138,33 @@ class FrameRenderer:
         Progress bar while the transport is traced (first use of a design only).
     """
 
-    def __init__(self, design, shape, wavelengths=None, *, spp: int = 4, sampling: str = "box",
+    def __init__(self, design, shape, wavelengths=None, *, sampling: str = "box",
                  diffraction: bool = True, progress: bool = False):
-        from sim import sensor
-        from sim.render import check_cube
-        from sim.transport import load_or_build
+        from sim.bands import check_cube
+        from sim.frame import FrameModel
+        from sim.transport import SEEDS
 
         wl = design.wavelengths if wavelengths is None else wavelengths
         h, w = (int(s) for s in shape)
         _, wl = check_cube(design, np.zeros((1, 1, np.size(wl)), np.float32), wl)
         self.design, self.shape, self.wavelengths = design, (h, w), wl
-        self.spp, self.sampling, self.diffraction = int(spp), sampling, bool(diffraction)
-        self.transport = load_or_build(design, (h, w), wl, spp=self.spp, sampling=sampling,
-                                       progress=progress)
-        dl = sensor.band_widths_nm(wl, design.band_step_nm)
-        qe = sensor.quantum_efficiency(design.qe_curve, wl)
-        self.band_scale = (qe * design.pixel_area_m2 * design.exposure_ms * 1e-3 * dl
-                           * (wl * 1e-9) / (_H * _C)).astype(np.float32)
-        self.kernels = None
-        if self.diffraction:
-            self.kernels = [sensor.airy_kernel(float(design.airy_radius_um(lam))
-                                               / design.sensor_pixel_um) for lam in wl]
-        self._irr = np.zeros((wl.size,) + tuple(self.transport.sensor), dtype=np.float32)
+        self.sampling, self.diffraction = sampling, bool(diffraction)
+        self.model = FrameModel(design, wl, sampling=sampling, trace_seed=SEEDS["scene"],
+                                diffraction=diffraction, progress=progress)
 
     def electrons(self, cube) -> np.ndarray:
         """Mean photo-electrons (Hs, Ws) float32 for a radiance scale of 1."""
-        from sim import sensor
-        from sim.render import check_cube
-
-        cube, _ = check_cube(self.design, cube, self.wavelengths)
+        cube = np.asarray(cube, np.float32)
         if cube.shape[:2] != self.shape:
             raise InputError(f"cube shape {cube.shape[:2]} differs from the renderer's {self.shape}")
-        irr = self.transport.apply(cube, out=self._irr)
-        ne = np.zeros(irr.shape[1:], dtype=np.float32)
-        for l in range(irr.shape[0]):  # a loop over bands: one image in flight
-            img = irr[l]
-            if self.kernels is not None:
-                img = sensor.airy_blur(img, kernel=self.kernels[l])
-            ne += self.band_scale[l] * img
-        np.maximum(ne, 0.0, out=ne)
-        return ne
+        return self.model.electrons(cube)
 
     def exposure_for(self, cube, auto_exposure: float = 0.8) -> float:
         """The radiance scale that puts the brightest pixel of ``cube`` at ``auto_exposure`` of
         the full well (:func:`sim.frame.simulate_frame`'s rule)."""
-        peak = float(self.electrons(cube).max())
-        if peak <= 0:
-            raise InputError("the scene is dark: no light reaches the sensor")
-        return float(auto_exposure) * self.design.full_well_e / peak
+        from sim.frame import exposure
+
+        return exposure(self.electrons(cube), self.design, auto_exposure)
 
     def render(self, cube, *, radiance_scale: float, seed=0, noise: bool = True) -> np.ndarray:
         """Raw frame (Hs, Ws) float32 in DN; ``seed`` (int or sequence) seeds the noise."""
@@ -209,19 +176,13 @@ class FrameRenderer:
 
     def metadata(self, *, radiance_scale: float, seed: int, noise: bool) -> dict:
         """The sidecar of :func:`sim.frame.simulate_frame` for these settings."""
-        d = self.design
-        return {
-            "kind": "kaleidospec raw frame", "units": "DN", "design": d.to_dict(),
-            "design_hash": d.hash, "exposure_ms": d.exposure_ms,
-            "wavelengths_nm": [float(x) for x in self.wavelengths],
-            "band_wavelengths_nm": [float(x) for x in d.wavelengths],
-            "monochromatic_nm": None, "seed": int(seed), "method": "transport",
-            "spp": self.spp, "band_sampling": self.sampling, "diffraction": self.diffraction,
-            "noise": bool(noise), "radiance_scale": float(radiance_scale),
-            "views": list(d.views),
-            "view_rects": {str(k): list(v) for k, v in d.view_rects().items()},
-            "sensor_shape": [d.sensor_height_px, d.sensor_width_px],
-        }
+        from sim.frame import frame_metadata
+
+        return frame_metadata(self.design, self.wavelengths, wavelength_nm=None, seed=seed,
+                              method="transport", spp=None, trace_seed=self.model.trace_seed,
+                              scene_shape=self.shape, sampling=self.sampling,
+                              diffraction=self.diffraction, noise=noise,
+                              radiance_scale=radiance_scale)
 
 
 def render_sequence(anim, design, out_dir, *, radiance_scale: float, seed: int = 0,
@@ -867,8 +828,9 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
     d = get_design(design, overrides)
     if not 1 <= int(views) <= len(d.views):
         raise InputError(f"--views must be 1..{len(d.views)} for this design, got {views}")
-    v = d.view_size_px
-    anim = get_animation(scene, (v, v), d.wavelengths, n_frames=frames, fps=fps,
+    from sim.frame import scene_grid
+
+    anim = get_animation(scene, scene_grid(d), d.wavelengths, n_frames=frames, fps=fps,
                          exposure_ms=d.exposure_ms, subframes=subframes, **(scene_params or {}))
     n = len(anim)
     ncpu = os.cpu_count() or 1

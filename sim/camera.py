@@ -46,7 +46,7 @@ def band_response(lo_nm: float, hi_nm: float) -> dict:
 
 def camera_dict(design, position, direction, film: dict | None = None,
                 crop: tuple[int, int, int, int] | None = None, sampler_seed: int = 0,
-                spp: int = 1) -> dict:
+                spp: int = 1, sampler: str = "independent") -> dict:
     """Mitsuba dict of the imaging lens + sensor.
 
     Parameters
@@ -61,6 +61,8 @@ def camera_dict(design, position, direction, film: dict | None = None,
         Film dict without its size (``specfilm`` with a band, typically); ``hdrfilm`` if None.
     crop : (row0, col0, height, width), optional
         Render only this window of the sensor.
+    sampler : str
+        Mitsuba sampler plugin (``independent``, ``multijitter``, ...).
     """
     mi = ensure_variant()
     W, H = int(design.sensor_width_px), int(design.sensor_height_px)
@@ -86,6 +88,6 @@ def camera_dict(design, position, direction, film: dict | None = None,
         "far_clip": 1e9,
         "to_world": mi.ScalarTransform4f().look_at(origin=o, target=target,
                                                    up=mi.ScalarVector3f(0, 1, 0)),
-        "sampler": {"type": "independent", "sample_count": int(spp), "seed": int(sampler_seed)},
+        "sampler": {"type": sampler, "sample_count": int(spp), "seed": int(sampler_seed)},
         "film": fd,
     }

@@ -23,9 +23,14 @@ the board's pattern size from that sidecar, never from the design.
 =================  ======================================================================
 
 Noise.  Captures are taken with the sensor's shot and read noise and, as in a lab, ``repeats``
-frames of each are averaged (the mean of N frames: noise / √N).  With the transport cache an
-extra frame costs a sensor draw (milliseconds), so the default of 4 repeats adds about a
-second.  ``repeats=0`` renders noise-free frames instead (exact expectation, quantised).
+frames of each are averaged (the mean of N frames: noise / √N).  The optics are integrated
+once per capture and only the sensor's noise is drawn per repeat, so the default of 4 repeats
+costs milliseconds.  ``repeats=0`` renders noise-free frames instead (exact expectation,
+quantised).
+
+Independence.  Every capture goes through the transport traced with the captures' own seed
+(:data:`sim.transport.SEEDS`); scene frames and the exact operator use others.  The targets are
+on the centre view's grid, the reconstruction grid of the calibrated models.
 
 Exposure.  Every capture is auto-exposed (brightest pixel at 80 % of the full well); the
 ``radiance_scale`` in its sidecar is the exposure factor (radiance units per cube unit), which
@@ -164,30 +169,41 @@ def capture(design, cube, wavelengths, *, wavelength_nm=None, repeats: int = 4, 
             target: str = "", sampling: str = "box"):
     r"""One capture: the mean of ``repeats`` noisy frames (or one noise-free frame if 0).
 
+    The optics and the exposure are deterministic: the expected frame is integrated once and
+    only the sensor's noise is drawn per repeat.  The transport is the captures' own realisation
+    (:data:`sim.transport.SEEDS`), never the one scene frames are rendered with.
+
     Returns
     -------
     frame : (Hs, Ws) float32, DN
     meta : dict
         :func:`sim.frame.simulate_frame`'s sidecar plus ``target`` and ``repeats``.
     """
-    from sim.frame import simulate_frame
+    from sim.bands import check_cube
+    from sim.frame import FrameModel, exposure, frame_metadata
+    from sim.sensor import digitise
+    from sim.transport import SEEDS
 
     if repeats < 0:
         raise InputError(f"repeats must be >= 0, got {repeats}")
+    cube, wl = check_cube(design, cube, wavelengths)
+    model = FrameModel(design, wl, sampling=sampling, wavelength_nm=wavelength_nm,
+                       trace_seed=SEEDS["captures"])
+    ne = model.electrons(cube)
+    scale = exposure(ne, design)
+    ne *= np.float32(scale)
     if repeats == 0:
-        frame, meta = simulate_frame(design, cube, wavelengths, wavelength_nm=wavelength_nm,
-                                     noise=False, seed=seed, sampling=sampling)
+        frame = digitise(ne, design, seed=seed, noise=False)
     else:
-        frame, meta = simulate_frame(design, cube, wavelengths, wavelength_nm=wavelength_nm,
-                                     noise=True, seed=seed, sampling=sampling)
-        acc = frame.astype(np.float64)
-        for r in range(1, repeats):
+        acc = np.zeros(ne.shape, np.float64)
+        for r in range(repeats):
             # Same exposure for every repeat (the lab does not re-expose between frames).
-            f, _ = simulate_frame(design, cube, wavelengths, wavelength_nm=wavelength_nm,
-                                  noise=True, seed=seed + r, sampling=sampling,
-                                  radiance_scale=meta["radiance_scale"])
-            acc += f
+            acc += digitise(ne, design, seed=seed + r, noise=True)
         frame = (acc / repeats).astype(np.float32)
+    meta = frame_metadata(design, model.bands_nm, wavelength_nm=wavelength_nm, seed=seed,
+                          method="transport", spp=None, trace_seed=model.trace_seed,
+                          scene_shape=cube.shape[:2], sampling=sampling, diffraction=True,
+                          noise=repeats > 0, radiance_scale=scale)
     meta = dict(meta, target=target, repeats=int(repeats))
     return frame, meta
 
@@ -196,9 +212,8 @@ def render_captures(design, *, repeats: int = 4, seed: int = 1000, progress: boo
                     ) -> Captures:
     """Render every calibration capture of ``design`` (see the module docstring).
 
-    The targets are cubes on the centre view's grid (``view_size_px`` square), the same shape
-    as the scenes of :func:`kaleidospec.pipeline.render_scene`, so the transport caches are
-    shared.  ``seed`` seeds the sensor noise (each capture its own seeds).
+    The targets are cubes on the centre view's grid (``view_size_px`` square).  ``seed`` seeds
+    the sensor noise (each capture its own seeds).
     """
     from scenes.calibration import line, white
     from scenes.colorchecker import colorchecker, patch_boxes

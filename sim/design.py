@@ -465,33 +465,47 @@ class Design:
         return self.grid_size * self.view_pitch_px <= self.sensor_height_px + 1e-9
 
     # ------------------------------------------------------------------ mask
+    def mask_owner(self) -> np.ndarray:
+        """Which view's code region holds each mask cell (by the cell's centre), as the sensor
+        sees it.
+
+        Returns
+        -------
+        numpy.ndarray
+            int8, shape (mask_cells, mask_cells): the view id, or −1 for cells in no code
+            region (guard stripes, the thin gaps between views and the field stop around the
+            grid, all chrome).  Cell (i, j) is imaged (centre band) onto sensor rows/cols
+            ``mask_origin_px + (i, j)·mask_cell_px``.
+        """
+        n = self.mask_cells
+        r0, c0 = self.mask_origin_px
+        centres = (np.arange(n, dtype=np.float64) + 0.5) * self.mask_cell_px
+        rows, cols = r0 + centres, c0 + centres
+        owner = np.full((n, n), -1, dtype=np.int8)
+        for v in (range(9) if self.kaleidoscope else (0,)):
+            vr, vc, h, w = self.code_region_px(v)
+            rin = np.flatnonzero((rows >= vr) & (rows < vr + h))
+            cin = np.flatnonzero((cols >= vc) & (cols < vc + w))
+            if rin.size and cin.size:
+                owner[rin[0]:rin[-1] + 1, cin[0]:cin[-1] + 1] = v
+        return owner
+
     def mask_pattern(self) -> np.ndarray:
         """The binary mask over the whole mask area, in mask cells, as the sensor sees it.
 
         Returns
         -------
         numpy.ndarray
-            bool, shape (mask_cells, mask_cells); True = open (quartz), False = chrome. Cell
-            (i, j) is imaged (centre band) onto sensor rows/cols
-            ``mask_origin_px + (i, j)·mask_cell_px``. Cells whose centre lies in a view's code
-            region (:meth:`code_region_px`) are open with probability ``mask_fill`` (a
-            ``numpy.random.default_rng(mask_seed)`` draw over the whole mask, so the pattern of
-            one view does not depend on the others); guard stripes, the thin gaps between views
-            and everything outside the grid (a field stop) are chrome.
+            bool, shape (mask_cells, mask_cells); True = open (quartz), False = chrome. Cells
+            inside a view's code region (:meth:`mask_owner`) are open with probability
+            ``mask_fill`` (a ``numpy.random.default_rng(mask_seed)`` draw over the whole mask,
+            so the pattern of one view does not depend on the others); guard stripes, the thin
+            gaps between views and everything outside the grid (a field stop) are chrome.
         """
         n = self.mask_cells
         rng = np.random.default_rng(self.mask_seed)
         code = rng.random((n, n), dtype=np.float32) < np.float32(self.mask_fill)
-        r0, c0 = self.mask_origin_px
-        centres = (np.arange(n, dtype=np.float64) + 0.5) * self.mask_cell_px
-        rows, cols = r0 + centres, c0 + centres
-        inside = np.zeros((n, n), dtype=bool)
-        for v in (range(9) if self.kaleidoscope else (0,)):
-            vr, vc, h, w = self.code_region_px(v)
-            rin = (rows >= vr) & (rows < vr + h)
-            cin = (cols >= vc) & (cols < vc + w)
-            inside |= rin[:, None] & cin[None, :]
-        return code & inside
+        return code & (self.mask_owner() >= 0)
 
     # ------------------------------------------------------------------ radiometry helpers
     @property

@@ -26,7 +26,7 @@ import numpy as np
 
 from sim.variant import ensure_variant
 
-__all__ = ["CubeRegion", "cube_region", "band_edges", "register", "texel_index",
+__all__ = ["CubeRegion", "cube_region", "register", "texel_index",
            "diffuser_shape", "PLUGIN"]
 
 PLUGIN = "kaleidospec_cubetex"
@@ -72,16 +72,6 @@ def cube_region(design, shape) -> CubeRegion:
     sx, sy = SENSOR_FROM_DIFFUSER
     return CubeRegion(x0=-side / 2, y0=-side / 2, dx=side / W, dy=side / H, height=H, width=W,
                       sx=sx, sy=sy)
-
-
-def band_edges(wavelengths, design) -> np.ndarray:
-    """Band boundaries (L+1,) nm: midpoints between centres, half a step beyond the ends."""
-    wl = np.asarray(wavelengths, dtype=np.float64)
-    step = float(design.band_step_nm)
-    if wl.size == 1:
-        return np.array([wl[0] - step / 2, wl[0] + step / 2])
-    mids = 0.5 * (wl[1:] + wl[:-1])
-    return np.concatenate([[wl[0] - (mids[0] - wl[0])], mids, [wl[-1] + (wl[-1] - mids[-1])]])
 
 
 def texel_index(p, region: CubeRegion):
@@ -189,6 +179,8 @@ def diffuser_shape(design, cube_lhw: np.ndarray | None, wavelengths, z: float = 
         cube_lhw = np.zeros((1, 1, 1), dtype=np.float32)
         wavelengths = [float(design.prism_center_nm)]
     shape = cube_lhw.shape[1:]
+    from sim.bands import band_edges
+
     tex.set_cube(cube_lhw, band_edges(wavelengths, design), cube_region(design, shape),
                  design.diffuser_transmittance)
     half = 0.5 * design.tube_width_mm

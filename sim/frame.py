@@ -1,8 +1,9 @@
 """Glue: scene cube → per-band sensor irradiance (optics) → raw frame (sensor) → files.
 
-:func:`simulate_frame` renders the optics with the transport cache (default) or the direct
-path tracer, hands the per-band irradiance to :func:`sim.sensor.capture` (Airy blur per band,
-QE, shot and read noise, 12-bit ADC) and returns the raw frame in DN with its metadata.
+:func:`simulate_frame` renders the optics with the transport's exact pixel integrals
+(:class:`FrameModel`, the default) or Mitsuba's path tracer (a Monte Carlo reference), applies
+the sensor (Airy blur per band, QE, shot and read noise, 12-bit ADC, :mod:`sim.sensor`) and
+returns the raw frame in DN with its metadata.
 :func:`write_frame` writes ``raw.exr`` + its JSON sidecar through :mod:`recon.io.raw` and the
 ground truth: the scene cube on the reconstruction grid of the centre view (the view's
 ``view_size_px`` square, cube row 0 at the top of the centre view, column 0 at its left; the
@@ -23,62 +24,146 @@ import numpy as np
 
 from recon.errors import InputError
 
-__all__ = ["ground_truth", "simulate_frame", "write_frame", "monochromatic_irradiance"]
+__all__ = ["SCENE_OVERSAMPLE", "scene_grid", "area_weights", "ground_truth", "FrameModel", "simulate_frame", "exposure",
+           "frame_metadata", "write_frame"]
+
+
+#: Built-in scenes are rendered at this many times the reconstruction grid's resolution, so a
+#: frame carries detail finer than any reconstruction grid, as a real scene does.
+SCENE_OVERSAMPLE = 2
+
+
+def scene_grid(design, scene=None):
+    """The grid a scene is rendered on: ``SCENE_OVERSAMPLE`` × the centre view's ``v × v`` for
+    a built-in scene, ``None`` (the file's own resolution) for a cube file."""
+    from scenes.registry import list_scenes
+
+    if scene is not None and str(scene) not in list_scenes():
+        return None
+    v = design.view_size_px * SCENE_OVERSAMPLE
+    return (v, v)
+
+
+def area_weights(n_in: int, n_out: int) -> np.ndarray:
+    """(n_out, n_in) weights of an exact area resampling along one axis: output cell i is the
+    mean of the input over the same fraction [i/n_out, (i+1)/n_out) of the side."""
+    a = np.arange(n_in + 1) / n_in
+    b = np.arange(n_out + 1) / n_out
+    lo = np.maximum(b[:-1, None], a[None, :-1])
+    hi = np.minimum(b[1:, None], a[None, 1:])
+    return np.clip(hi - lo, 0.0, None) * n_out
 
 
 def ground_truth(design, cube) -> np.ndarray:
-    """The cube (H, W, L) resampled onto the centre view's grid (v, v, L), float32.
+    """The cube (H, W, L) averaged onto the centre view's grid (v, v, L), float32.
 
     Each cube pixel covers an equal part of the centre view (:func:`sim.diffuser.cube_region`),
-    so this is an area resize (identity when the cube is already v × v).
+    so a grid pixel's truth is the exact area mean of the cube over it (:func:`area_weights`;
+    the identity when the cube is already v × v, a 2 × 2 block mean at twice the resolution).
     """
     v = design.view_size_px
     c = np.asarray(cube, dtype=np.float32)
     if c.shape[:2] == (v, v):
         return c
-    from skimage.transform import resize
+    wy = area_weights(c.shape[0], v).astype(np.float32)
+    wx = area_weights(c.shape[1], v).astype(np.float32)
+    return np.ascontiguousarray(np.einsum("ij,jkl,mk->iml", wy, c, wx, optimize=True),
+                                dtype=np.float32)
 
-    return resize(c, (v, v, c.shape[2]), order=1, anti_aliasing=True,
-                  preserve_range=True).astype(np.float32)
 
+class FrameModel:
+    r"""The expected frame of a cube through a design, before noise: the transport's pixel
+    integrals (:mod:`sim.transport`), each band's Airy blur, and the sensor's photo-electrons,
 
-def monochromatic_irradiance(design, cube, wavelengths, wavelength_nm: float, *,
-                             direct: bool = False, spp: int = 4, seed: int = 0,
-                             progress: bool = False) -> tuple[np.ndarray, int]:
-    """Irradiance (1, Hs, Ws) of a monochromatic capture at ``wavelength_nm``.
+    .. math:: \bar N_e = \sum_l c_l\, (K_l * E_l), \qquad c_l = \eta(\lambda_l)\,
+              \frac{\lambda_l}{hc}\, A_{px}\, t\, \Delta\lambda_l
 
-    The scene's radiance at λ is that of the band containing λ (the cube is piecewise constant
-    in λ). Returns the image and the band index used.
+    (:func:`sim.sensor.electron_scale`, :func:`sim.sensor.blur_views`).  Bands run on a thread
+    per core, one band image in flight per thread; only the used views' rectangles are
+    integrated and blurred.
+
+    Parameters
+    ----------
+    design : sim.design.Design
+    wavelengths : array_like (L,), optional
+        The cube's bands (the design's by default).
+    sampling : {"box", "centre"}
+        Each band's whole interval, or its centre wavelength (:func:`sim.bands.band_intervals`).
+    wavelength_nm : float, optional
+        A monochromatic capture at this wavelength: one band, the cube's band holding it.
+    trace_seed : int
+        The transport's realisation (:data:`sim.transport.SEEDS`).
+    diffraction : bool
+        Airy blur per band.
     """
-    wl = np.asarray(wavelengths, dtype=np.float64)
-    lam = float(wavelength_nm)
-    if not np.isfinite(lam) or lam < design.filter_min_nm or lam > design.filter_max_nm:
-        raise InputError(
-            f"wavelength {wavelength_nm} nm is outside the design's pass band "
-            f"{design.filter_min_nm:g}–{design.filter_max_nm:g} nm"
-        )
-    from sim.diffuser import band_edges
 
-    e = band_edges(wl, design)
-    l = int(np.clip(np.searchsorted(e, lam, side="right") - 1, 0, wl.size - 1))
-    c = np.ascontiguousarray(np.asarray(cube, dtype=np.float32)[:, :, l:l + 1])
-    if direct:
-        from sim.render import render_direct
-
-        img = render_direct(design, c, [lam], spp=spp, seed=seed, intervals=[[lam, lam]],
-                            progress=progress)
-    else:
+    def __init__(self, design, wavelengths=None, *, sampling: str = "box",
+                 wavelength_nm: float | None = None, trace_seed: int = 0,
+                 diffraction: bool = True, progress: bool = False):
+        from sim.bands import band_edges, band_intervals
+        from sim.sensor import airy_kernel, electron_scale
         from sim.transport import load_or_build
 
-        tr = load_or_build(design, c.shape[:2], [lam], spp=spp, seed=0, sampling="centre",
-                           progress=progress)
-        img = tr.apply(c)
-    return img, l
+        wl = design.wavelengths if wavelengths is None else np.atleast_1d(
+            np.asarray(wavelengths, np.float64))
+        self.design, self.wavelengths = design, wl
+        if wavelength_nm is not None:
+            lam = float(wavelength_nm)
+            if not np.isfinite(lam) or lam < design.filter_min_nm or lam > design.filter_max_nm:
+                raise InputError(
+                    f"wavelength {wavelength_nm} nm is outside the design's pass band "
+                    f"{design.filter_min_nm:g}–{design.filter_max_nm:g} nm")
+            e = band_edges(wl, design)
+            self.source_band = int(np.clip(np.searchsorted(e, lam, side="right") - 1, 0,
+                                           wl.size - 1))
+            self.bands_nm = np.array([lam])
+            intervals = np.array([[lam, lam]])
+        else:
+            self.source_band = None
+            self.bands_nm = wl
+            intervals = band_intervals(design, wl, sampling)
+        self.transport = load_or_build(design, intervals=intervals, seed=int(trace_seed),
+                                       progress=progress)
+        self.trace_seed = int(trace_seed)
+        self.scale = electron_scale(design, self.bands_nm).astype(np.float32)
+        self.kernels = None
+        if diffraction:
+            self.kernels = [airy_kernel(float(design.airy_radius_um(lam)) / design.sensor_pixel_um)
+                            for lam in self.bands_nm]
+        self.rects = [design.view_rect(v) for v in self.transport.views]
+
+    def electrons(self, cube) -> np.ndarray:
+        """Mean photo-electrons (Hs, Ws) float32 of ``cube`` (H, W, L) for a radiance scale of 1."""
+        from sim.bands import check_cube
+        from sim.sensor import blur_views
+        from sim.transport import ordered_sum
+
+        cube, _ = check_cube(self.design, cube, self.wavelengths)
+        if self.source_band is not None:
+            cube = cube[:, :, self.source_band:self.source_band + 1]
+        lhw = np.ascontiguousarray(np.moveaxis(cube, 2, 0))
+        tr = self.transport
+        tr.prepare(range(lhw.shape[0]), lhw.shape[2])
+
+        def one(l):
+            if not lhw[l].any():
+                return None         # a band-pass capture lights one band
+            img = tr.band(lhw[l], l)
+            if self.kernels is not None:
+                img = blur_views(img, self.kernels[l], self.rects)
+            img *= self.scale[l]
+            return img
+
+        total = ordered_sum(one, range(lhw.shape[0]), np.zeros(tr.sensor, np.float32))
+        # Blur with zero padding leaves round-off around zero; charge is never negative.
+        np.maximum(total, 0.0, out=total)
+        return total
 
 
 def simulate_frame(design, cube, wavelengths, *, direct: bool = False, spp: int | None = None,
-                   seed: int = 0, sampling: str = "box", wavelength_nm: float | None = None,
-                   diffraction: bool = True, noise: bool = True, auto_exposure: float = 0.8,
+                   seed: int = 0, trace_seed: int | None = None, sampling: str = "box",
+                   wavelength_nm: float | None = None, diffraction: bool = True,
+                   noise: bool = True, auto_exposure: float = 0.8,
                    radiance_scale: float | None = None, progress: bool = False):
     """Render one raw frame.
 
@@ -86,16 +171,18 @@ def simulate_frame(design, cube, wavelengths, *, direct: bool = False, spp: int 
     ----------
     design : sim.design.Design
     cube : ndarray (H, W, L)
-        Scene radiance at ``wavelengths`` (bands of the design).
+        Scene radiance at ``wavelengths`` (bands of the design), at any resolution.
     direct : bool
-        Use Mitsuba's path tracer (slow reference) instead of the transport cache.
+        Mitsuba's path tracer (:func:`sim.render.render_direct`: a Monte Carlo reference, slow)
+        instead of the transport's exact pixel integrals.
     spp : int, optional
-        Samples per pixel per band (default 4 cached, 16 direct). The transport cache is traced
-        with seed 0 whatever ``seed`` is, so frames with different seeds share it.
+        Samples per pixel per band of a direct render (default 64; direct renders only).
     seed : int
         Sensor noise seed (and the direct render's sampler seed); same seed → same frame.
+    trace_seed : int, optional
+        The transport's realisation (:data:`sim.transport.SEEDS`; default: the scene frames').
     sampling : {"box", "centre"}
-        Wavelengths within each band (:func:`sim.transport.band_intervals`).
+        Wavelengths within each band (:func:`sim.bands.band_intervals`).
     wavelength_nm : float, optional
         Monochromatic capture at this wavelength (calibration) instead of the full spectrum.
     diffraction, noise : bool
@@ -109,39 +196,69 @@ def simulate_frame(design, cube, wavelengths, *, direct: bool = False, spp: int 
     -------
     frame : ndarray (Hs, Ws) float32, DN
     metadata : dict
-        JSON-ready: design, hash, exposure, wavelengths, seed, method, radiance scale, views.
+        JSON-ready: design, hash, exposure, wavelengths, seeds, method, radiance scale, views.
     """
     from sim import sensor
-    from sim.render import check_cube, render_direct
-    from sim.transport import render_cached
+    from sim.bands import check_cube
+    from sim.transport import SEEDS
 
-    spp = int(spp if spp is not None else (16 if direct else 4))
+    if spp is not None and not direct:
+        raise InputError("spp sets the samples of a direct render; the transport integrates "
+                         "every pixel exactly and takes no sample count")
+    spp = int(spp if spp is not None else 64)
     if spp < 1:
         raise InputError(f"spp must be at least 1, got {spp}")
+    trace_seed = SEEDS["scene"] if trace_seed is None else int(trace_seed)
     cube, wl = check_cube(design, cube, wavelengths)
-    if wavelength_nm is not None:
-        irr, l = monochromatic_irradiance(design, cube, wl, wavelength_nm, direct=direct,
-                                          spp=spp, seed=seed, progress=progress)
-        bands_wl = np.array([float(wavelength_nm)])
-    else:
-        if direct:
+    if direct:
+        from sim.render import render_direct
+
+        if wavelength_nm is not None:
+            model = FrameModel(design, wl, wavelength_nm=wavelength_nm, trace_seed=trace_seed,
+                               diffraction=False)
+            l = model.source_band
+            irr = render_direct(design, cube[:, :, l:l + 1], [wavelength_nm], spp=spp,
+                                seed=seed, intervals=[[wavelength_nm, wavelength_nm]],
+                                progress=progress)
+            bands_wl = np.array([float(wavelength_nm)])
+        else:
             irr = render_direct(design, cube, wl, spp=spp, seed=seed, sampling=sampling,
                                 progress=progress)
-        else:
-            irr = render_cached(design, cube, wl, spp=spp, sampling=sampling, progress=progress)
-        bands_wl = wl
-    e = np.moveaxis(irr, 0, 2)  # (Hs, Ws, L) view, no copy
-    ne = sensor.mean_electrons(e, design, bands_wl, diffraction=diffraction)
-    # FFT convolution leaves round-off around zero (|x| ~ 1e-9 of the peak); charge is ≥ 0.
-    np.maximum(ne, 0.0, out=ne)
-    if radiance_scale is None:
-        peak = float(ne.max())
-        if peak <= 0:
-            raise InputError("the scene is dark: no light reaches the sensor")
-        radiance_scale = auto_exposure * design.full_well_e / peak
+            bands_wl = wl
+        ne = sensor.mean_electrons(np.moveaxis(irr, 0, 2), design, bands_wl,
+                                   diffraction=diffraction)
+        np.maximum(ne, 0.0, out=ne)
+    else:
+        model = FrameModel(design, wl, sampling=sampling, wavelength_nm=wavelength_nm,
+                           trace_seed=trace_seed, diffraction=diffraction, progress=progress)
+        ne = model.electrons(cube)
+        bands_wl = model.bands_nm
+    radiance_scale = exposure(ne, design, auto_exposure, radiance_scale)
     ne *= np.float32(radiance_scale)
     frame = sensor.digitise(ne, design, seed=seed, noise=noise)
-    meta = {
+    meta = frame_metadata(design, bands_wl, wavelength_nm=wavelength_nm, seed=seed,
+                          method="direct" if direct else "transport", spp=spp if direct else None,
+                          trace_seed=None if direct else trace_seed, scene_shape=cube.shape[:2],
+                          sampling=sampling, diffraction=diffraction, noise=noise,
+                          radiance_scale=radiance_scale)
+    return frame, meta
+
+
+def exposure(electrons, design, auto_exposure: float = 0.8, radiance_scale=None) -> float:
+    """``radiance_scale`` if given, else the one that puts the brightest pixel's expected charge
+    at ``auto_exposure`` of the full well."""
+    if radiance_scale is not None:
+        return float(radiance_scale)
+    peak = float(np.max(electrons))
+    if peak <= 0:
+        raise InputError("the scene is dark: no light reaches the sensor")
+    return float(auto_exposure) * design.full_well_e / peak
+
+
+def frame_metadata(design, bands_wl, *, wavelength_nm, seed, method, spp, trace_seed,
+                   scene_shape, sampling, diffraction, noise, radiance_scale) -> dict:
+    """The JSON sidecar of a raw frame (:func:`simulate_frame`)."""
+    return {
         "kind": "kaleidospec raw frame",
         "units": "DN",
         "design": design.to_dict(),
@@ -151,8 +268,10 @@ def simulate_frame(design, cube, wavelengths, *, direct: bool = False, spp: int 
         "band_wavelengths_nm": [float(x) for x in design.wavelengths],
         "monochromatic_nm": None if wavelength_nm is None else float(wavelength_nm),
         "seed": int(seed),
-        "method": "direct" if direct else "transport",
-        "spp": spp,
+        "method": method,
+        "spp": None if spp is None else int(spp),
+        "trace_seed": None if trace_seed is None else int(trace_seed),
+        "scene_shape": [int(x) for x in scene_shape],
         "band_sampling": "centre" if wavelength_nm is not None else sampling,
         "diffraction": bool(diffraction),
         "noise": bool(noise),
@@ -161,7 +280,6 @@ def simulate_frame(design, cube, wavelengths, *, direct: bool = False, spp: int 
         "view_rects": {str(k): list(v) for k, v in design.view_rects().items()},
         "sensor_shape": [design.sensor_height_px, design.sensor_width_px],
     }
-    return frame, meta
 
 
 def write_frame(out, frame, metadata, design=None, cube=None, wavelengths=None, *,

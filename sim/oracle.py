@@ -1,42 +1,45 @@
-r"""The exact (oracle) forward operator of a design: the simulator's own linear map.
+r"""The exact (oracle) forward operator of a design: the simulator's own converged linear map.
 
 Every element between the diffuser and the sensor is specular and the sensor is linear before
-noise, so the expected raw frame of a cube :math:`f` on the ground-truth grid (the centre view's
-:math:`v \times v` square, :func:`sim.frame.ground_truth`) is, in DN at ``radiance_scale`` 1,
+noise, so the expected raw frame of a cube :math:`f` on a grid, in DN at ``radiance_scale`` 1,
+is
 
-.. math:: \bar g(p) = \sum_l q_l\, (A_l f_l)(p),
+.. math:: \bar g = \sum_l q_l\, K_l * (T_l f_l),
 
-with :math:`A_l` the band's sparse transport matrix (:mod:`sim.transport`: which diffuser texel
-every sensor sample sees, with the mirrors', mask's and prism's throughput) and :math:`q_l` the
-sensor's DN per unit irradiance in band :math:`l` (QE, pixel area, exposure, band width, ADC
-gain; :func:`sim.sensor.mean_electrons`).  :class:`TransportOperator` is that map restricted to
-the views' rectangles, ``(L, v, v) -> (K, v, v)``, with its exact adjoint and row norms.  So
-``frame / radiance_scale`` cut into the view rectangles (:func:`oracle_measurements`) is the
-oracle's measurement, and the only differences from a rendered frame are noise, quantisation
-and the sensor's Airy blur (not modelled here: 0.3 px for the ``small`` design, 1.65 px for
-``paper``).  This is the reference for "reconstruction from calibration is within 1 dB of the
-exact operator": calibration has to recover what :math:`A_l` holds (mask, dispersion per view,
-the mirror geometry, vignetting) from captures.
+with :math:`T_l` the band's exact pixel integrals (:mod:`sim.transport`: mask, dispersion per
+view, the mirror geometry, vignetting and losses), :math:`K_l` its Airy kernel and :math:`q_l`
+the sensor's DN per unit irradiance (QE, pixel area, exposure, the band's width inside the
+filter, ADC gain).  :class:`ExactOperator` is that map restricted to the views' rectangles,
+``(L, H, W) -> (K, v, v)``, with its exact adjoint (a dot test checks it), so ``frame /
+radiance_scale`` cut into the rectangles (:func:`oracle_measurements`) differs from it only by
+the sensor's noise and quantisation.  This is the reference for "reconstruction from
+calibration is within 1 dB of the exact operator".
 
-``inversion=False`` composes every view with the mirror flips of its grid position
-(:math:`A_{k,l} F_k`), so every view sees the scene upright: the same masks and dispersion
-without the dispersion inversion of the mirrored views (paper Fig. 8c), a hypothetical system.
+It is traced with its own seed (:data:`sim.transport.SEEDS`): neither the captures' nor the
+scene frames' realisation, though all three converge to the same optics.
 
-Memory: the transport entries of the views (about ``views × v² × spp`` per band): ~25 MB for the
-``small`` design with 5 views, several GB for ``paper``.
+``inversion=False`` composes every view with the mirror flips of its grid position, so every
+view sees the scene upright: the same masks and dispersion without the dispersion inversion of
+the mirrored views (paper Fig. 8c), a hypothetical system.
+
+Memory: the transport's maps and throughput images (``views × v² × L`` floats: 5 MB for
+``small``, 420 MB for ``paper``) and one sensor image per thread.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
-import scipy.sparse as sp
 
 from recon.errors import InputError
-from recon.operators.sparse import SparseMatrixOperator
+from recon.operators.base import LinearOperator
 
-__all__ = ["TransportOperator", "oracle_operator", "oracle_measurements", "band_gains"]
+__all__ = ["ExactOperator", "oracle_operator", "oracle_measurements", "band_gains", "VIEW_ORDER"]
 
 VIEW_ORDER = (0, 1, 2, 3, 4, 5, 6, 7, 8)
+#: Rademacher probes of :meth:`ExactOperator.mean_row_norm_sq`.
+NORM_PROBES = 8
 
 
 def _view_ids(n_views, design) -> tuple[int, ...]:
@@ -55,49 +58,168 @@ def _view_ids(n_views, design) -> tuple[int, ...]:
 
 
 def band_gains(design, wavelengths=None) -> np.ndarray:
-    """(L,) DN per unit sensor irradiance of each band (:func:`sim.sensor.mean_electrons` of a
-    unit image, over the ADC gain ``full_well_e / max_dn``)."""
-    from sim.sensor import mean_electrons
+    """(L,) DN per unit sensor irradiance of each band (:func:`sim.sensor.electron_scale` over
+    the ADC gain ``full_well_e / max_dn``)."""
+    from sim.sensor import electron_scale
 
-    wl = design.wavelengths if wavelengths is None else np.asarray(wavelengths, np.float64)
-    one = np.zeros((1, 1, wl.size), np.float32)
-    out = np.empty(wl.size)
-    for l in range(wl.size):
-        one[:] = 0.0
-        one[0, 0, l] = 1.0
-        out[l] = float(mean_electrons(one, design, wl)[0, 0])
-    return out * design.max_dn / design.full_well_e
+    return electron_scale(design, wavelengths) * design.max_dn / design.full_well_e
 
 
-class TransportOperator(SparseMatrixOperator):
-    r"""The simulator's expected frame restricted to some views, ``(L, v, v) -> (K, v, v)``.
+class ExactOperator(LinearOperator):
+    r"""The simulator's expected frame restricted to some views, ``(L, H, W) -> (K, v, v)``.
 
     Parameters
     ----------
-    matrices : list of L scipy.sparse matrices, each (K·v·v, H·W)
-        :math:`q_l A_l` restricted to the views' rectangles (rows: view-major, row-major),
-        placed side by side as one band-major matrix.
-    cube_shape : (L, H, W)
-    out_shape : (K, v, v)
+    design : sim.design.Design
+    transport : sim.transport.Transport
+        Traced for the design's bands (box sampling).
+    view_ids : sequence of int
+        The views, in measurement order.
+    grid : (H, W)
+        The cube's grid on the diffuser (the centre view's ``v × v`` by default).
+    inversion : bool
+        ``False``: every view composed with its mirror flips (no dispersion inversion).
+    diffraction : bool
+        The sensor's Airy blur per band.
     """
 
-    def __init__(self, matrices, cube_shape, out_shape):
-        super().__init__(sp.hstack(list(matrices), format="csr"), cube_shape, out_shape)
+    def __init__(self, design, transport, view_ids, grid=None, *, inversion: bool = True,
+                 diffraction: bool = True):
+        from sim.design import VIEW_GRID
+        from sim.sensor import airy_kernel
+
+        v = design.view_size_px
+        grid = (v, v) if grid is None else tuple(int(x) for x in grid)
+        wl = design.wavelengths
+        if transport.n_bands != wl.size:
+            raise InputError(f"the transport has {transport.n_bands} bands, the design {wl.size}")
+        super().__init__((wl.size,) + grid, (len(view_ids), v, v))
+        self.tr = transport
+        self.index = [transport.views.index(int(i)) for i in view_ids]
+        self.rects = [tuple(int(x) for x in transport.maps.rects[k]) for k in self.index]
+        self.all_rects = [tuple(int(x) for x in r) for r in transport.maps.rects]
+        self.q = band_gains(design, wl).astype(np.float32)
+        self.cell_px = float(design.mask_cell_px)
+        self.kernels = ([airy_kernel(float(design.airy_radius_um(lam)) / design.sensor_pixel_um)
+                         for lam in wl] if diffraction else None)
+        self.flip_of = []
+        for i in transport.views:
+            r, c = VIEW_GRID[int(i)] if design.kaleidoscope else (1, 1)
+            self.flip_of.append(tuple(a for a, g in ((0, r), (1, c)) if g != 1)
+                                if not inversion else ())
+        self._rn = None
+        transport.prepare(range(wl.size), grid[1])
+
+    def _flip(self, img, axes):
+        return np.ascontiguousarray(np.flip(img, axis=axes)) if axes else img
+
+    def _forward(self, x):
+        from sim.sensor import blur_views
+        from sim.transport import ordered_sum
+
+        dt = np.float64 if x.dtype == np.float64 else np.float32
+        x32 = np.asarray(x, np.float32)
+
+        def one(l):
+            # Every traced view's light, since the blur carries some across the rectangles'
+            # borders, whether or not its view is measured.
+            img = np.zeros(self.tr.sensor, np.float32)
+            for k, (r0, c0, h, w) in enumerate(self.all_rects):
+                img[r0:r0 + h, c0:c0 + w] = self.tr.view_band(self._flip(x32[l], self.flip_of[k]),
+                                                              k, l)
+            if self.kernels is not None:
+                img = blur_views(img, self.kernels[l], self.rects)
+            return self.q[l] * np.stack([img[r0:r0 + h, c0:c0 + w]
+                                         for r0, c0, h, w in self.rects]).astype(np.float64)
+
+        out = ordered_sum(one, range(self.ishape[0]), np.zeros(self.oshape, np.float64))
+        return out.astype(dt)
+
+    def _adjoint(self, y):
+        from sim.sensor import blur_views
+        from sim.transport import each
+
+        dt = np.float64 if y.dtype == np.float64 else np.float32
+        img0 = np.zeros(self.tr.sensor, np.float32)
+        for j, (r0, c0, h, w) in enumerate(self.rects):
+            img0[r0:r0 + h, c0:c0 + w] = y[j]
+        out = np.zeros(self.ishape, np.float64)
+
+        def one(l):
+            # The Airy kernel is symmetric: blurring is its own adjoint.
+            img = blur_views(img0, self.kernels[l], self.rects) if self.kernels is not None \
+                else img0
+            acc = out[l]                 # each band its own slice: no two threads share one
+            flipped = None
+            for k, (r0, c0, h, w) in enumerate(self.all_rects):
+                e = np.ascontiguousarray(img[r0:r0 + h, c0:c0 + w]) * self.q[l]
+                if not e.any():
+                    continue
+                if self.flip_of[k]:
+                    flipped = self.tr.view_band_adjoint(e, k, l, self.ishape[1:])
+                    acc += np.flip(flipped, axis=self.flip_of[k])
+                else:
+                    self.tr.view_band_adjoint(e, k, l, self.ishape[1:], fbar=acc)
+
+        each(one, range(self.ishape[0]))
+        return out.astype(dt)
+
+    def mean_row_norm_sq(self) -> float:
+        r"""Mean of :math:`\|a_i\|^2` over the measured rows (those with any weight):
+        :math:`\|A\|_F^2 / n` by Hutchinson's estimator, :math:`\mathbb E\|A z\|^2` over
+        Rademacher probes :math:`z` (:data:`NORM_PROBES`, fixed seed; relative error
+        ~10⁻³ here: a row couples only the few texels of its footprint)."""
+        rng = np.random.default_rng(0)
+        acc = 0.0
+        lit = np.zeros(self.oshape, bool)
+        for _ in range(NORM_PROBES):
+            z = rng.choice(np.array([-1.0, 1.0], np.float32), size=self.ishape)
+            az = self.forward(z).astype(np.float64)
+            acc += float(np.sum(az ** 2))
+            lit |= az != 0
+        n = int(lit.sum())
+        return acc / NORM_PROBES / max(n, 1)
+
+    def row_norms_sq(self):
+        r"""Diagonal of :math:`AA^\top`, exactly, by coloured probing: two rows of one view
+        further apart than a footprint, its smear and the blur share no texel, so a probe that
+        lights one view's rows on a lattice of that spacing returns each of their norms
+        (``views × lattice`` probes, each a forward and an adjoint: slow for ``paper``; only
+        GAP-TV needs it)."""
+        if self._rn is None:
+            reach = max(k.shape[0] // 2 for k in self.kernels) if self.kernels else 0
+            smear = max(float(np.ptp(self.tr.intervals[l]) > 0) * self._smear_px(l)
+                        for l in range(self.ishape[0]))
+            texel = max(self.oshape[1] / self.ishape[1], self.oshape[2] / self.ishape[2])
+            py = int(math.ceil(2 * reach + 2 + 2 * texel)) + 1
+            px = int(math.ceil(2 * reach + 2 + 2 * texel + 2 * smear)) + 1
+            K, v, _ = self.oshape
+            yy, xx = np.mgrid[0:v, 0:v]
+            rn = np.zeros(self.oshape, np.float64)
+            for j in range(K):
+                for a in range(py):
+                    for b in range(px):
+                        z = np.zeros(self.oshape, np.float64)
+                        z[j] = ((yy % py) == a) & ((xx % px) == b)
+                        rn += z * self.forward(self.adjoint(z))
+            # The kernels run in float32: a row with next to no weight can come out a rounding
+            # error below zero.
+            self._rn = np.maximum(rn, 0.0)
+        return self._rn
+
+    def _smear_px(self, l) -> float:
+        """How far (px) a pixel's footprint moves across band ``l`` (its first and last node)."""
+        m, nodes = self.tr.maps, self.tr.band_nodes[l]
+        a, b = int(nodes[0]), int(nodes[-1])
+        # The constant Legendre term is the map's mean over the view (mask cells).
+        return abs(float(m.mask[0, b, 0, 0, 0] - m.mask[0, a, 0, 0, 0])) * self.cell_px + 1.0
 
     def __repr__(self):
-        return f"TransportOperator({self.ishape} -> {self.oshape})"
+        return f"ExactOperator({self.ishape} -> {self.oshape})"
 
 
-def _flip_perm(h: int, w: int, axes) -> np.ndarray:
-    """Texel index permutation of a flip of an (h, w) image along ``axes``."""
-    idx = np.arange(h * w).reshape(h, w)
-    for a in axes:
-        idx = np.flip(idx, axis=a)
-    return np.ascontiguousarray(idx).ravel()
-
-
-def oracle_operator(design, n_views: int, *, inversion: bool = True, spp: int = 4,
-                    seed: int = 0):
+def oracle_operator(design, n_views: int, *, inversion: bool = True, seed: int | None = None,
+                    grid=None, diffraction: bool = True) -> ExactOperator:
     """The exact operator of ``design`` for its first ``n_views`` views (module notes).
 
     Parameters
@@ -108,53 +230,17 @@ def oracle_operator(design, n_views: int, *, inversion: bool = True, spp: int = 
         1..9, views in the order centre, left, right, top, bottom, corners.
     inversion : bool
         ``False``: every view composed with its mirror flips (no dispersion inversion).
-    spp : int
-        Samples per pixel of the transport (the scene frames' default, so the same cache).
-    seed : int
-        Random seed of the transport's trace.  0 is the trace the frames are rendered with:
-        the operator then knows which texel and wavelength each of a pixel's ``spp`` rays met
-        (the frame's Monte Carlo draw).  Another seed traces the same optics afresh: the
-        instrument's physics without that draw (``tools/exp_calibration_gap.py``).
-
-    Returns
-    -------
-    TransportOperator
+    seed : int, optional
+        The transport's realisation (default: the oracle's own, :data:`sim.transport.SEEDS`).
+    grid : (H, W), optional
+        The cube's grid (default the centre view's ``v × v``).
     """
-    from sim.design import VIEW_GRID
-    from sim.transport import load_or_build
+    from sim.transport import SEEDS, load_or_build
 
     ids = _view_ids(n_views, design)
-    v = design.view_size_px
-    wl = design.wavelengths
-    tr = load_or_build(design, (v, v), wl, spp=spp, seed=seed, sampling="box")
-    hs, ws = tr.sensor
-    # Sensor pixel -> output row (view-major), -1 outside the chosen views.
-    where = np.full(hs * ws, -1, dtype=np.int64)
-    for k, vid in enumerate(ids):
-        r0, c0, h, w = design.view_rect(vid)
-        rr, cc = np.mgrid[r0:r0 + h, c0:c0 + w]
-        where[(rr * ws + cc).ravel()] = k * v * v + np.arange(v * v)
-    q = band_gains(design, wl)
-    ntex = v * v
-    perms = {}
-    for k, vid in enumerate(ids):
-        r, c = VIEW_GRID[vid]
-        axes = tuple(a for a, g in ((0, r), (1, c)) if g != 1)
-        perms[k] = _flip_perm(v, v, axes) if (axes and not inversion) else None
-    mats = []
-    for l in range(wl.size):
-        rows = where[tr.pix[l].astype(np.int64)]
-        keep = rows >= 0
-        rows, tex, w = rows[keep], tr.tex[l][keep].astype(np.int64), tr.w[l][keep]
-        if not inversion:
-            view_of = rows // (v * v)
-            for k, p in perms.items():
-                if p is not None:
-                    sel = view_of == k
-                    tex[sel] = p[tex[sel]]
-        mats.append(sp.csr_matrix((w.astype(np.float64) * q[l], (rows, tex)),
-                                  shape=(len(ids) * v * v, ntex)))
-    return TransportOperator(mats, (wl.size, v, v), (len(ids), v, v))
+    tr = load_or_build(design, design.wavelengths, seed=SEEDS["oracle"] if seed is None
+                       else int(seed))
+    return ExactOperator(design, tr, ids, grid, inversion=inversion, diffraction=diffraction)
 
 
 def oracle_measurements(frame, metadata, design, n_views: int) -> np.ndarray:

@@ -39,7 +39,7 @@ import numpy as np
 
 from sim.variant import ensure_variant
 
-__all__ = ["SceneSpec", "build_scene"]
+__all__ = ["SceneSpec", "build_scene", "TraceSetup", "trace_setup"]
 
 
 @dataclass
@@ -52,12 +52,13 @@ class SceneSpec:
     texture: object
     z: dict = field(default_factory=dict)
 
-    def camera(self, design, film=None, crop=None, seed=0, spp=1) -> dict:
+    def camera(self, design, film=None, crop=None, seed=0, spp=1,
+               sampler: str = "independent") -> dict:
         """The sensor dict (:func:`sim.camera.camera_dict`) for this scene."""
         from sim.camera import camera_dict
 
         return camera_dict(design, self.camera_position, self.camera_direction, film=film,
-                           crop=crop, sampler_seed=seed, spp=spp)
+                           crop=crop, sampler_seed=seed, spp=spp, sampler=sampler)
 
 
 def build_scene(design, cube_lhw: np.ndarray | None = None, wavelengths=None, *,
@@ -145,3 +146,34 @@ def build_scene(design, cube_lhw: np.ndarray | None = None, wavelengths=None, *,
     return SceneSpec(scene=scene, camera_position=cam_pos, camera_direction=exit_dir,
                      texture=tex,
                      z={"relay": z_relay, "mask": z_mask, "collimator": z_col, "prism": z_prism})
+
+
+@dataclass
+class TraceSetup:
+    """A loaded instrument for the tracers (:func:`sim.rays.walk`): the Mitsuba scene, its
+    camera and the places the tracers record."""
+
+    mi: object
+    scene: object
+    camera: object
+    z: dict
+    #: z of the tube's exit (its only stop), None without the kaleidoscope.
+    tube_length: float | None
+    tube_width: float
+    sensor_shape: tuple[int, int]
+
+
+def trace_setup(design, *, open_mask: bool = False) -> TraceSetup:
+    """Load the instrument with a dark diffuser for tracing (not for rendering a scene).
+
+    ``open_mask`` replaces the code by an all-open plate (the optical maps need where a ray
+    crosses the mask, whatever the cell there; the pattern is applied afterwards).
+    """
+    mi = ensure_variant()
+    pattern = np.ones((design.mask_cells, design.mask_cells), bool) if open_mask else None
+    spec = build_scene(design, None, None, mask_pattern=pattern)
+    return TraceSetup(mi=mi, scene=mi.load_dict(spec.scene), camera=mi.load_dict(spec.camera(design)),
+                      z=dict(spec.z), tube_length=(float(design.mirror_length_mm)
+                                                   if design.kaleidoscope else None),
+                      tube_width=float(design.tube_width_mm),
+                      sensor_shape=(design.sensor_height_px, design.sensor_width_px))

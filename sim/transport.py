@@ -1,34 +1,27 @@
-"""The fast path: a transport cache of the optical system, and frames as sparse gathers.
+r"""The fast path: a design's optical maps, traced once, and frames as exact pixel integrals.
 
-Every element between the diffuser and the sensor is specular (delta) and the system is linear
-in the scene radiance, so the per-band sensor image is
+Every element between the diffuser and the sensor is specular and the system is linear in the
+scene, so a band's sensor image is a fixed linear map of the scene's band.  This module keeps
+that map in the form the physics gives it: the optical maps of :mod:`sim.maps` (where each
+sensor point looks on the mask and the diffuser, at each wavelength node, and the throughput),
+traced with Mitsuba once per design, and the pixel integral of :mod:`sim.pixel_integral`, which
+integrates every pixel's footprint over its area, the band, the mask cells and the scene's
+texels exactly.  A frame is then a deterministic integral, not a Monte Carlo draw: a capture
+and a scene frame made from it agree because the optics agree, and no calibration can learn a
+sampling pattern (there is none to learn).  How close it is to the converged direct render is
+measured by ``tools/bench_transport.py``; :mod:`sim.sampled` keeps the Monte Carlo transport as
+an independent cross-check.
 
-.. math:: E_l(p) = \\frac{\\pi}{1 + 4N^2} \\cdot \\frac{1}{S} \\sum_{s=1}^{S}
-          \\tau_{s}\\; T_d\\, f_l\\big(t_s\\big),
+A transport does not depend on the scene's resolution (the maps end on the diffuser in units of
+the scene's side), so one trace serves the calibration targets on the view's grid and scenes at
+twice that resolution.  ``seed`` picks the realisation of the trace (the jitter of the traced
+sensor points and the aperture samples): the calibration captures, the scene frames and the
+exact operator each use their own (:data:`SEEDS`), so no figure is scored on the realisation its
+model was fitted to.
 
-where pixel *p* shoots S camera samples (uniform over the pixel, the lens aperture and the
-band's wavelengths), sample *s* reaches diffuser texel :math:`t_s` with throughput
-:math:`\\tau_s` (mirror reflectances, mask and quartz, prism Fresnel losses; 0 if it is blocked),
-and :math:`f_l` is band *l* of the cube. Since :math:`(t_s, \\tau_s)` do not depend on the scene,
-we trace them once per band and keep, per band, the sparse matrix :math:`A_l` with
-:math:`A_l[p, t] = \\frac{\\pi T_d}{(1+4N^2) S}\\sum_{s: t_s = t} \\tau_s` (duplicates merged).
-A frame is then :math:`E_l = A_l f_l` for every band: a gather and a ``bincount``.
-
-The tracer here is independent of Mitsuba's path integrator (its own loop over
-``ray_intersect`` and ``BSDF.sample``), which is what makes the direct render
-(:mod:`sim.render`) a meaningful check of it. With the same sample count the two estimate the
-same expectation; they differ only by Monte Carlo noise.
-
-How the S samples of a pixel are drawn is the ``sampler`` (:func:`pixel_samples`): i.i.d.
-(``independent``, the default) or randomised quasi-Monte Carlo (``sobol``), which stratifies
-every pixel's samples over its area and its band and lowers the per-pixel error of a frame at the
-same cost (16 samples: 0.085 against 0.119 relative to a 512-sample reference;
-``tools/bench_sampler.py``).
-
-Cache files: ``<cache>/transport-<design hash>-<key>.npz`` (``np.savez_compressed``, written to a
-temporary file in the same folder and renamed; read with ``allow_pickle=False``), where the key
-hashes the cube shape, samples per pixel, band intervals, views, seed and sampler. The cache
-folder is ``$KALEIDOSPEC_CACHE`` or ``~/.cache/kaleidospec``.
+Cache files: ``<cache>/maps-<design hash>-<key>.npz`` (written to a temporary file in the same
+folder and renamed; read with ``allow_pickle=False``), the key hashing the band intervals, views,
+seed and trace settings.  The cache folder is ``$KALEIDOSPEC_CACHE`` or ``~/.cache/kaleidospec``.
 """
 
 from __future__ import annotations
@@ -38,32 +31,23 @@ import json
 import os
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from recon.errors import InputError
+from sim.bands import band_intervals
 
-__all__ = [
-    "Transport",
-    "cache_dir",
-    "band_intervals",
-    "sensor_pixels",
-    "trace_band",
-    "build_transport",
-    "load_or_build",
-    "render_cached",
-    "SAMPLERS",
-    "check_sampler",
-    "pixel_samples",
-    "STATS",
-]
+__all__ = ["Transport", "SEEDS", "cache_dir", "build_transport", "load_or_build",
+           "render_cached", "each", "ordered_sum", "STATS"]
 
-#: Counters for tests and benchmarks: how many bands were traced / loaded from disk.
-STATS = {"traced_bands": 0, "loaded": 0, "built": 0}
-
-_FORMAT = 1
+#: Trace realisations: calibration captures, scene frames and the exact (oracle) operator.
+SEEDS = {"captures": 0, "scene": 1, "oracle": 2}
+#: Counters for tests and benchmarks: transports traced, loaded from disk.
+STATS = {"built": 0, "loaded": 0}
+_FORMAT = 2
+#: Trace settings (part of the cache key).
+TRACE = {"degree": 5, "aperture_rays": 16, "tolerance_px": 0.003}
 
 
 def cache_dir() -> Path:
@@ -73,363 +57,245 @@ def cache_dir() -> Path:
     return p
 
 
-def band_intervals(design, wavelengths=None, sampling: str = "box") -> np.ndarray:
-    """Wavelength interval (L, 2) sampled for each band.
-
-    ``box``: the whole band, between midpoints of neighbouring centres (what a sensor pixel
-    integrates; bands then carry their own dispersion blur). ``centre``: the band centre only
-    (a monochromatic image per band, the discrete forward model of DESIGN.md §2).
-    """
-    from sim.diffuser import band_edges
-
-    wl = design.wavelengths if wavelengths is None else np.asarray(wavelengths, np.float64)
-    if sampling == "centre":
-        return np.stack([wl, wl], axis=1)
-    if sampling != "box":
-        raise InputError(f"band sampling must be 'box' or 'centre', got {sampling!r}")
-    e = band_edges(wl, design)
-    lo = np.maximum(e[:-1], design.filter_min_nm)
-    hi = np.minimum(e[1:], design.filter_max_nm)
-    return np.stack([lo, hi], axis=1)
-
-
-def sensor_pixels(design, views=None, crop=None) -> np.ndarray:
-    """Flat sensor pixel indices (row·W + col) of the used views' rectangles (sorted, int64).
-
-    ``crop`` = (row0, col0, height, width) intersects them with a window (benchmarks).
-    """
-    H, W = design.sensor_height_px, design.sensor_width_px
-    keep = np.zeros((H, W), dtype=bool)
-    for v in (design.views if views is None else views):
-        r0, c0, h, w = design.view_rect(v)
-        keep[max(r0, 0):min(r0 + h, H), max(c0, 0):min(c0 + w, W)] = True
-    if crop is not None:
-        r0, c0, h, w = crop
-        win = np.zeros_like(keep)
-        win[max(r0, 0):r0 + h, max(c0, 0):c0 + w] = True
-        keep &= win
-    return np.flatnonzero(keep.ravel())
-
-
-@dataclass
 class Transport:
-    """Per-band sparse transport: for band l, ``pix[l]``, ``tex[l]``, ``w[l]`` (sorted by pixel)."""
+    """The traced optics of a design for a set of bands, and the pixel integral on them.
 
-    design_hash: str
-    shape: tuple[int, int]          # cube (H, W) on the diffuser
-    sensor: tuple[int, int]         # (Hs, Ws)
-    wavelengths: np.ndarray         # band centres (L,)
-    intervals: np.ndarray           # (L, 2) sampled interval per band
-    spp: int
-    pix: list
-    tex: list
-    w: list
-    build_seconds: float = 0.0
-    path: Path | None = None
-    _seg: list | None = None
+    Attributes
+    ----------
+    maps : sim.maps.OpticalMaps
+    intervals : (L, 2) ndarray
+        Wavelength interval of every band (equal ends: monochromatic).
+    band_nodes : list of int arrays
+        Indices into ``maps.nodes_nm`` of each band's nodes.
+    code : (n, n) int8
+        The view owning every open mask cell, −1 for chrome (:meth:`Design.mask_owner`).
+    sensor : (Hs, Ws)
+    """
 
-    def _matrix(self, l: int):
-        """Band l as the distinct pixels it lights and a CSR matrix (pixels × texels).
+    def __init__(self, design, maps, intervals, band_nodes, *, build_seconds=0.0, path=None):
+        self.design_hash = design.hash
+        self.maps = maps
+        self.intervals = np.asarray(intervals, np.float64).reshape(-1, 2)
+        self.band_nodes = [np.asarray(b, np.int64) for b in band_nodes]
+        self.sensor = (int(design.sensor_height_px), int(design.sensor_width_px))
+        self.code = np.where(design.mask_pattern(), design.mask_owner(), -1).astype(np.int8)
+        self.views = tuple(int(v) for v in maps.views)
+        self.build_seconds = float(build_seconds)
+        self.path = path
+        self._tau, self._geom, self._part = {}, {}, {}
 
-        The entries are sorted by pixel, so each pixel's run is one CSR row and the matrix
-        shares the index and weight arrays (no copy); scipy's CSR product gathers, weighs and
-        sums in one pass, about twice as fast as ``take`` + ``reduceat``.
-        """
-        if self._seg is None:
-            self._seg = [None] * len(self.pix)
-        if self._seg[l] is None:
-            import scipy.sparse as sp
+    @property
+    def n_bands(self) -> int:
+        return len(self.band_nodes)
 
-            upix, starts = np.unique(self.pix[l], return_index=True)
-            indptr = np.append(starts, self.tex[l].size).astype(np.int64 if self.tex[l].size
-                                                                  >= 2**31 else np.int32)
-            n_tex = self.shape[0] * self.shape[1]
-            a = sp.csr_matrix((self.w[l], self.tex[l], indptr), shape=(upix.size, n_tex))
-            self._seg[l] = (upix.astype(np.int64), a)
-        return self._seg[l]
+    def _check_band(self, l):
+        if not 0 <= int(l) < self.n_bands:
+            raise InputError(f"band {l} out of range 0..{self.n_bands - 1}")
+        return int(l)
 
-    def apply(self, cube: np.ndarray, bands=None, out: np.ndarray | None = None) -> np.ndarray:
-        """Per-band irradiance (L, Hs, Ws) float32 of a cube (H, W, L) on this transport.
+    def geometry(self, k: int, l: int):
+        """:class:`sim.pixel_integral.RowGeometry` of view index ``k`` in band ``l``."""
+        key = (k, l)
+        if key not in self._geom:
+            from sim.pixel_integral import RowGeometry
 
-        E_l = A_l f_l: a sparse product per band (each sensor pixel sums its entries'
-        ``w · f_l[tex]``), float32 throughout, bands in parallel.
-        """
-        cube = np.asarray(cube, dtype=np.float32)
-        Hs, Ws = self.sensor
-        L = len(self.pix)
+            self._geom[key] = RowGeometry(self.maps, k, self.band_nodes[l])
+        return self._geom[key]
+
+    def throughput(self, k: int, l: int) -> np.ndarray:
+        """τ of view index ``k`` in band ``l`` at its pixel centres, (h, w) float32."""
+        if k not in self._tau:
+            from sim.pixel_integral import throughput_images
+
+            self._tau[k] = throughput_images(self.maps, k, self.band_nodes)
+        return self._tau[k][l]
+
+    def partition(self, k: int, width: int):
+        """The x partition of view index ``k`` for a cube ``width`` texels wide."""
+        key = (k, int(width))
+        if key not in self._part:
+            from sim.pixel_integral import partition
+
+            lo, hi = np.inf, -np.inf
+            for l in range(self.n_bands):
+                a, b = self.geometry(k, l).x_range()
+                lo, hi = min(lo, a), max(hi, b)
+            self._part[key] = partition(self.maps.relay[k], int(width), (lo, hi),
+                                        self.code.shape[0])
+        return self._part[key]
+
+    def view_band(self, f, k: int, l: int, out=None) -> np.ndarray:
+        """Irradiance (h, w) of view index ``k`` in band ``l`` from the band image ``f`` (H, W)."""
+        from sim.pixel_integral import band_forward
+
+        l = self._check_band(l)
+        return band_forward(f, self.code, self.views[k], self.maps.relay[k],
+                            self.partition(k, np.shape(f)[1]), self.geometry(k, l),
+                            self.throughput(k, l), out)
+
+    def view_band_adjoint(self, e, k: int, l: int, shape, fbar=None) -> np.ndarray:
+        """The adjoint of :meth:`view_band`: (H, W) float64 (accumulated into ``fbar``)."""
+        from sim.pixel_integral import band_adjoint
+
+        l = self._check_band(l)
+        return band_adjoint(e, self.code, self.views[k], self.maps.relay[k],
+                            self.partition(k, int(shape[1])), self.geometry(k, l),
+                            self.throughput(k, l), shape, fbar)
+
+    def band(self, f, l: int, out=None) -> np.ndarray:
+        """Sensor irradiance (Hs, Ws) float32 of band ``l`` of the scene (band image ``f``)."""
         if out is None:
-            out = np.zeros((L, Hs, Ws), dtype=np.float32)
-        todo = [l for l in (range(L) if bands is None else bands) if self.pix[l].size]
-        for l in todo:  # the matrices are built once, outside the threads
-            self._matrix(l)
-
-        def one(l):
-            upix, a = self._matrix(l)
-            out[l].reshape(-1)[upix] = a @ np.ascontiguousarray(cube[:, :, l]).ravel()
-
-        # scipy's sparse product releases the GIL: bands run in parallel on all cores.
-        workers = min(len(todo), os.cpu_count() or 1)
-        if workers > 1:
-            with ThreadPoolExecutor(workers) as pool:
-                list(pool.map(one, todo))
-        else:
-            for l in todo:
-                one(l)
+            out = np.zeros(self.sensor, np.float32)
+        f = np.ascontiguousarray(f, np.float32)
+        for k in range(len(self.views)):
+            r0, c0, h, w = (int(v) for v in self.maps.rects[k])
+            out[r0:r0 + h, c0:c0 + w] = self.view_band(f, k, l)
         return out
 
+    def apply(self, cube, bands=None, out=None) -> np.ndarray:
+        """Per-band irradiance (L, Hs, Ws) float32 of a cube (H, W, L), bands on threads."""
+        cube = np.asarray(cube, np.float32)
+        if cube.ndim != 3 or cube.shape[2] != self.n_bands:
+            raise InputError(f"cube shape {cube.shape} does not have the transport's "
+                             f"{self.n_bands} bands")
+        lhw = np.ascontiguousarray(np.moveaxis(cube, 2, 0))
+        if out is None:
+            out = np.zeros((self.n_bands,) + self.sensor, np.float32)
+        todo = list(range(self.n_bands)) if bands is None else [int(b) for b in bands]
+        self.prepare(todo, lhw.shape[2])
+        each(lambda l: self.band(lhw[l], l, out[l]), todo)
+        return out
+
+    def prepare(self, bands, width: int) -> None:
+        """Build the geometry, throughput and partitions of ``bands`` (once, before threads)."""
+        for k in range(len(self.views)):
+            self.partition(k, width)
+            self.throughput(k, 0)
+
     def nbytes(self) -> int:
-        """In-memory size of the index and weight arrays."""
-        return int(sum(a.nbytes for a in self.pix + self.tex + self.w))
+        """Memory of the maps and of the throughput images computed so far."""
+        m = self.maps
+        return int(m.mask.nbytes + m.exit.nbytes + m.throughput.nbytes
+                   + sum(t.nbytes for ts in self._tau.values() for t in ts))
 
 
-def _trace_setup(design, shape):
-    from sim.scene import build_scene
-    from sim.variant import ensure_variant
-
-    mi = ensure_variant()
-    spec = build_scene(design, None, None)
-    scene = mi.load_dict(spec.scene)
-    sensor = mi.load_dict(spec.camera(design))
-    from sim.diffuser import cube_region
-
-    return mi, scene, sensor, cube_region(design, shape)
+def each(fn, items):
+    """``fn(item)`` for every item, on a thread per core (the kernels release the GIL)."""
+    items = list(items)
+    workers = min(len(items), os.cpu_count() or 1)
+    if workers > 1:
+        with ThreadPoolExecutor(workers) as pool:
+            return list(pool.map(fn, items))
+    return [fn(i) for i in items]
 
 
-SAMPLERS = ("independent", "sobol")
+def ordered_sum(fn, items, out):
+    """``out += fn(item)`` for every item, ``fn`` on a thread per core, the sum always in the
+    items' order (so a frame is the same to the last bit whichever thread finishes first, and
+    its noise draw too); one result per thread in flight.  ``fn`` may return None (nothing)."""
+    items = list(items)
+    workers = max(1, min(len(items), os.cpu_count() or 1))
+    with ThreadPoolExecutor(workers) as pool:
+        for i in range(0, len(items), workers):
+            for part in pool.map(fn, items[i:i + workers]):
+                if part is not None:
+                    out += part
+    return out
 
 
-def check_sampler(sampler: str) -> str:
-    """``sampler`` if it names one of :data:`SAMPLERS`, else :class:`InputError`."""
-    if sampler not in SAMPLERS:
-        raise InputError(f"sampler must be one of {', '.join(SAMPLERS)}, got {sampler!r}")
-    return sampler
-
-
-def pixel_samples(n_pixels: int, spp: int, sampler: str, rng):
-    """A function giving the (5, n) unit-cube samples of flat sample indices ``s``.
-
-    Sample ``k`` of pixel ``i`` is ``s = i·spp + k``; its five coordinates are the position in
-    the pixel (2), on the lens aperture (2) and in the band's wavelength interval (1).
-
-    ``independent``: i.i.d. uniform (plain Monte Carlo). ``sobol``: randomised quasi-Monte
-    Carlo: the first ``spp`` points of one Owen-scrambled Sobol sequence, toroidally shifted by a
-    random vector per pixel (Cranley–Patterson rotation), so every pixel's samples keep the
-    net's stratification (with 4 samples: one in each quarter of the pixel's area, on a grid
-    shifted by the rotation, and one in each quarter of the band) while pixels stay
-    independent.  A pixel's integrand is piecewise constant (mask cells, scene texels, the
-    band's dispersion), for which stratification cuts the error from O(spp^-1/2) towards
-    O(spp^-1) (measured on `small`: about spp^-0.65).
-    """
-    if check_sampler(sampler) == "independent":
-        return lambda s: rng.random((5, s.size))
-    import warnings
-
-    from scipy.stats import qmc
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)    # balance warning for spp not 2^m
-        base = qmc.Sobol(5, scramble=True, seed=rng).random(spp).T     # (5, spp)
-    shift = rng.random((5, n_pixels))
-
-    def draw(s):
-        u = base[:, s % spp] + shift[:, s // spp]
-        return u - np.floor(u)
-
-    return draw
-
-
-def trace_band(design, shape, interval, spp: int, seed: int = 0, pixels=None,
-               max_depth: int = 24, batch: int = 1 << 21, sampler: str = "independent",
-               _setup=None):
-    """Trace one band: every (pixel, sample) → (texel, throughput).
-
-    Parameters
-    ----------
-    design : sim.design.Design
-    shape : (H, W)
-        Cube resolution on the diffuser (sets the texel grid).
-    interval : (lo, hi)
-        Wavelengths (nm) sampled uniformly for this band (lo == hi: monochromatic).
-    spp : int
-        Samples per pixel (uniform over the pixel area and the lens aperture).
-    seed : int
-        Seeds the NumPy generator that draws every sample (the result is deterministic).
-    pixels : ndarray of int, optional
-        Flat sensor pixels to trace; the used views by default.
-    sampler : {"independent", "sobol"}
-        How each pixel's samples are drawn (:func:`pixel_samples`).
-
-    Returns
-    -------
-    pix, tex : ndarray int32
-        Pixel and texel of every (pixel, texel) pair that received light, sorted by pixel.
-    w : ndarray float32
-        Σ τ_s · T_d · π/(1+4N²) / spp over the samples of that pair.
-    """
-    import drjit as dr
-
-    from sim.camera import irradiance_factor
-    from sim.diffuser import texel_index
-
-    mi, scene, sensor, region = _setup if _setup is not None else _trace_setup(design, shape)
-    Hs, Ws = design.sensor_height_px, design.sensor_width_px
-    if pixels is None:
-        pixels = sensor_pixels(design)
-    pixels = np.asarray(pixels, dtype=np.int64)
-    rng = np.random.default_rng([int(seed), int(round(interval[0] * 1000)),
-                                 int(round(interval[1] * 1000))])
-    ntex = int(shape[0]) * int(shape[1])
-    scale = irradiance_factor(design) * design.diffuser_transmittance / spp
-    ctx = mi.BSDFContext()
-    keys_all, w_all = [], []
-    total = pixels.size * spp
-    draw = pixel_samples(pixels.size, spp, sampler, rng)
-    for start in range(0, total, batch):
-        n = min(batch, total - start)
-        s_idx = np.arange(start, start + n, dtype=np.int64)
-        pix = pixels[s_idx // spp]
-        r = (pix // Ws).astype(np.float64)
-        c = (pix % Ws).astype(np.float64)
-        u = draw(s_idx)
-        pos = mi.Point2f(((c + u[0]) / Ws).astype(np.float32), ((r + u[1]) / Hs).astype(np.float32))
-        ap = mi.Point2f(u[2].astype(np.float32), u[3].astype(np.float32))
-        lam = (interval[0] + (interval[1] - interval[0]) * u[4]).astype(np.float32)
-        ray, _ = sensor.sample_ray(0.0, 0.5, pos, ap)
-        lam_dr = mi.Float(lam)
-        ray.wavelengths = mi.Spectrum(lam_dr, lam_dr, lam_dr, lam_dr)
-        thr = mi.Spectrum(1.0)
-        active = mi.Bool(True)
-        tex = mi.UInt32(0)
-        got = mi.Bool(False)
-        for _ in range(max_depth):
-            si = scene.ray_intersect(ray, active)
-            active &= si.is_valid()
-            # The diffuser is the only surface at z = 0 facing +z; it emits on its front only.
-            at_d = active & (dr.abs(si.p.z) < 1e-3) & (ray.d.z < 0)
-            idx, inside = texel_index(si.p, region)
-            tex = dr.select(at_d, idx, tex)
-            got |= at_d & inside
-            active &= ~at_d
-            bsdf = si.bsdf(ray)
-            bs, wgt = bsdf.sample(ctx, si, 0.5, mi.Point2f(0.5, 0.5), active)
-            thr = dr.select(active, thr * wgt, thr)
-            active &= dr.any(wgt > 0)
-            ray = dr.select(active, si.spawn_ray(si.to_world(bs.wo)), ray)
-            # Hero-wavelength weights keep the four wavelengths' mean unbiased.
-            dr.eval(ray, thr, active, tex, got)
-            if not dr.any(active):
-                break
-        wmean = (thr[0] + thr[1] + thr[2] + thr[3]) * 0.25
-        wk = np.asarray(dr.select(got, wmean, 0.0), dtype=np.float32)
-        tk = np.asarray(tex, dtype=np.int64)
-        ok = wk > 0
-        keys_all.append(pix[ok] * ntex + tk[ok])
-        w_all.append(wk[ok])
-    keys = np.concatenate(keys_all) if keys_all else np.zeros(0, np.int64)
-    ws = np.concatenate(w_all) if w_all else np.zeros(0, np.float32)
-    uk, inv = np.unique(keys, return_inverse=True)
-    wsum = np.bincount(inv, weights=ws.astype(np.float64), minlength=uk.size) * scale
-    STATS["traced_bands"] += 1
-    return ((uk // ntex).astype(np.int32), (uk % ntex).astype(np.int32),
-            wsum.astype(np.float32))
-
-
-def _key(design, shape, intervals, spp, seed, pixels_desc, sampler) -> str:
+def _key(design, intervals, seed) -> str:
     blob = json.dumps({
-        "format": _FORMAT, "design": design.hash, "shape": [int(s) for s in shape],
-        "intervals": np.round(np.asarray(intervals, np.float64), 6).tolist(), "spp": int(spp),
-        "seed": int(seed), "pixels": pixels_desc, "sampler": sampler,
+        "format": _FORMAT, "design": design.hash,
+        "intervals": np.round(np.asarray(intervals, np.float64), 6).tolist(),
+        "views": sorted(int(v) for v in design.views), "seed": int(seed), "trace": TRACE,
     }, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
-def build_transport(design, shape, wavelengths=None, *, spp: int = 4, seed: int = 0,
-                    sampling: str = "box", sampler: str = "independent", crop=None,
-                    progress: bool = False) -> Transport:
-    """Trace the optical system for every band inside the filter's pass band (not cached)."""
-    check_sampler(sampler)
-    wl = design.wavelengths if wavelengths is None else np.asarray(wavelengths, np.float64)
-    iv = band_intervals(design, wl, sampling)
-    setup = _trace_setup(design, shape)
-    pixels = sensor_pixels(design, crop=crop)
-    t0 = time.perf_counter()
-    pix, tex, w = [], [], []
-    it = range(wl.size)
-    if progress:
-        from tqdm import tqdm
+def build_transport(design, intervals, *, seed: int = 0, progress: bool = False) -> Transport:
+    """Trace the optical maps for the band ``intervals`` (L, 2) (not cached)."""
+    from sim.maps import band_nodes, trace_maps
 
-        it = tqdm(it, desc="transport", unit="band")
-    for l in it:
-        inside = (wl[l] >= design.filter_min_nm) and (wl[l] <= design.filter_max_nm)
-        if not inside or iv[l, 1] < iv[l, 0]:
-            pix.append(np.zeros(0, np.int32)), tex.append(np.zeros(0, np.int32))
-            w.append(np.zeros(0, np.float32))
-            continue
-        p, t, ww = trace_band(design, shape, iv[l], spp, seed=seed + 7919 * l, pixels=pixels,
-                              sampler=sampler, _setup=setup)
-        pix.append(p), tex.append(t), w.append(ww)
+    iv = np.asarray(intervals, np.float64).reshape(-1, 2)
+    if iv.size == 0 or np.any(iv[:, 1] < iv[:, 0]):
+        raise InputError("every band interval needs lo <= hi")
+    nodes, index = band_nodes(design, iv, TRACE["tolerance_px"])
+    t0 = time.perf_counter()
+    maps = trace_maps(design, nodes, seed=seed, degree=TRACE["degree"],
+                      aperture_rays=TRACE["aperture_rays"], progress=progress)
     STATS["built"] += 1
-    return Transport(design.hash, (int(shape[0]), int(shape[1])),
-                     (design.sensor_height_px, design.sensor_width_px), wl, iv, int(spp),
-                     pix, tex, w, build_seconds=time.perf_counter() - t0)
+    return Transport(design, maps, iv, index, build_seconds=time.perf_counter() - t0)
+
+
+_ARRAYS = ("nodes_nm", "rects", "norm", "mask", "exit", "throughput", "relay", "fit_rms")
 
 
 def _save(tr: Transport, path: Path) -> None:
     from recon.io.atomic import atomic_path
 
-    arrays = {
-        "format": np.array(_FORMAT), "design_hash": np.array(tr.design_hash),
-        "shape": np.array(tr.shape, np.int64), "sensor": np.array(tr.sensor, np.int64),
-        "wavelengths": tr.wavelengths, "intervals": tr.intervals, "spp": np.array(tr.spp),
-        "build_seconds": np.array(tr.build_seconds),
-    }
-    for l in range(len(tr.pix)):
-        # Pixel indices are sorted: their differences are small and compress well.
-        arrays[f"dpix_{l}"] = np.diff(tr.pix[l], prepend=0).astype(np.int32)
-        arrays[f"tex_{l}"] = tr.tex[l]
-        arrays[f"w_{l}"] = tr.w[l]
+    m = tr.maps
+    arrays = {name: getattr(m, name) for name in _ARRAYS}
+    arrays.update(format=np.array(_FORMAT), design_hash=np.array(tr.design_hash),
+                  views=np.array(m.views, np.int64), degree=np.array(m.degree),
+                  has_stop=np.array(m.has_stop), stop_half=np.array(m.stop_half),
+                  seed=np.array(m.seed), seconds=np.array(m.seconds),
+                  intervals=tr.intervals, build_seconds=np.array(tr.build_seconds),
+                  band_lengths=np.array([b.size for b in tr.band_nodes], np.int64),
+                  band_nodes=np.concatenate(tr.band_nodes).astype(np.int64))
     with atomic_path(path) as tmp:
         np.savez_compressed(tmp, **arrays)
 
 
-def _load(path: Path) -> Transport:
+def _load(design, path: Path) -> Transport:
+    from sim.maps import OpticalMaps
+
     with np.load(path, allow_pickle=False) as z:
-        if int(z["format"]) != _FORMAT:
-            raise ValueError("old cache format")
-        L = int(z["wavelengths"].size)
-        pix = [np.cumsum(z[f"dpix_{l}"], dtype=np.int64).astype(np.int32) for l in range(L)]
-        return Transport(str(z["design_hash"]), tuple(int(v) for v in z["shape"]),
-                         tuple(int(v) for v in z["sensor"]), z["wavelengths"].copy(),
-                         z["intervals"].copy(), int(z["spp"]), pix,
-                         [z[f"tex_{l}"].copy() for l in range(L)],
-                         [z[f"w_{l}"].copy() for l in range(L)],
+        if int(z["format"]) != _FORMAT or str(z["design_hash"]) != design.hash:
+            raise ValueError("another cache format or design")
+        maps = OpticalMaps(design_hash=str(z["design_hash"]),
+                           views=tuple(int(v) for v in z["views"]), degree=int(z["degree"]),
+                           has_stop=bool(z["has_stop"]), stop_half=float(z["stop_half"]),
+                           seed=int(z["seed"]), seconds=float(z["seconds"]),
+                           **{name: z[name].copy() for name in _ARRAYS})
+        splits = np.cumsum(z["band_lengths"])[:-1]
+        nodes = np.split(z["band_nodes"], splits)
+        return Transport(design, maps, z["intervals"], nodes,
                          build_seconds=float(z["build_seconds"]), path=path)
 
 
 _MEMO: dict[str, Transport] = {}
 
 
-def load_or_build(design, shape, wavelengths=None, *, spp: int = 4, seed: int = 0,
-                  sampling: str = "box", sampler: str = "independent", crop=None,
-                  progress: bool = False, use_disk: bool = True) -> Transport:
-    """The transport for this design/shape/bands: from memory, from the cache folder, or traced
-    (and then written to the cache folder atomically)."""
-    wl = design.wavelengths if wavelengths is None else np.asarray(wavelengths, np.float64)
-    iv = band_intervals(design, wl, sampling)
-    key = _key(design, shape, iv, spp, seed, [list(design.views), crop], sampler)
+def load_or_build(design, wavelengths=None, *, sampling: str = "box", intervals=None,
+                  seed: int = 0, progress: bool = False, use_disk: bool = True) -> Transport:
+    """The transport of ``design`` for its bands: from memory, from the cache folder, or traced
+    (and then written to the cache folder atomically).
+
+    Parameters
+    ----------
+    wavelengths : array_like, optional
+        Band centres (the design's by default), integrated per ``sampling``
+        (:func:`sim.bands.band_intervals`), or explicit ``intervals`` (L, 2).
+    seed : int
+        The trace's realisation (:data:`SEEDS`).
+    """
+    if intervals is None:
+        wl = design.wavelengths if wavelengths is None else np.asarray(wavelengths, np.float64)
+        intervals = band_intervals(design, wl, sampling)
+    iv = np.asarray(intervals, np.float64).reshape(-1, 2)
+    key = _key(design, iv, seed)
     if key in _MEMO:
         return _MEMO[key]
-    path = cache_dir() / f"transport-{design.hash}-{key}.npz"
+    path = cache_dir() / f"maps-{design.hash}-{key}.npz"
     tr = None
     if use_disk and path.exists():
         try:
-            tr = _load(path)
+            tr = _load(design, path)
             STATS["loaded"] += 1
         except (OSError, ValueError, KeyError):
-            tr = None  # a damaged or outdated file is simply rebuilt
+            tr = None  # a damaged or outdated file is simply traced again
     if tr is None:
-        tr = build_transport(design, shape, wl, spp=spp, seed=seed, sampling=sampling,
-                             sampler=sampler, crop=crop, progress=progress)
+        tr = build_transport(design, iv, seed=seed, progress=progress)
         if use_disk:
             _save(tr, path)
             tr.path = path
@@ -437,18 +303,14 @@ def load_or_build(design, shape, wavelengths=None, *, spp: int = 4, seed: int = 
     return tr
 
 
-def render_cached(design, cube: np.ndarray, wavelengths, *, spp: int = 4, seed: int = 0,
-                  sampling: str = "box", sampler: str = "independent", progress: bool = False,
-                  crop=None) -> np.ndarray:
-    """Per-band sensor irradiance (L, Hs, Ws) float32 of ``cube`` (H, W, L) from the cache.
+def render_cached(design, cube: np.ndarray, wavelengths, *, seed: int = 0,
+                  sampling: str = "box", progress: bool = False) -> np.ndarray:
+    """Per-band sensor irradiance (L, Hs, Ws) float32 of ``cube`` (H, W, L) from the transport.
 
-    ``wavelengths`` are the cube's band centres; they must be bands of the design (bands
-    outside the filter's pass band give dark images). The first call for a design/cube shape
-    traces the optics (:func:`load_or_build`); later calls are gathers.
+    ``wavelengths`` are the cube's band centres; they must be bands of the design.
     """
-    from sim.render import check_cube
+    from sim.bands import check_cube
 
     cube, wl = check_cube(design, cube, wavelengths)
-    tr = load_or_build(design, cube.shape[:2], wl, spp=spp, seed=seed, sampling=sampling,
-                       sampler=sampler, crop=crop, progress=progress)
+    tr = load_or_build(design, wl, sampling=sampling, seed=seed, progress=progress)
     return tr.apply(cube)

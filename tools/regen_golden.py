@@ -50,7 +50,7 @@ def main(argv=None) -> int:
         if a.check:
             gold = g.load_goldens(out)
             p = g.produce()
-            problems = g.compare_frames(p["frame"], gold["frame"], gold["meta"]["spp"])
+            problems = g.compare_frames(p["frame"], gold["frame"])
             problems += g.compare_reconstructions(p["cube"], gold["cube"], p["truth_grid"],
                                                   gold["meta"]["psnr_truth_db"])
             for line in problems:

@@ -16,10 +16,10 @@ def render(
                                              "name=value (repeatable)."),
     wavelength: Optional[float] = typer.Option(None, "--wavelength", help="Monochromatic "
                                                "capture at this wavelength (nm)."),
-    spp: Optional[int] = typer.Option(None, "--spp", help="Samples per pixel per band "
-                                      "(default 4, or 16 with --direct)."),
-    direct: bool = typer.Option(False, "--direct", help="Path-trace directly instead of "
-                                "using the transport cache."),
+    spp: Optional[int] = typer.Option(None, "--spp", help="Samples per pixel per band of a "
+                                      "--direct render (default 64)."),
+    direct: bool = typer.Option(False, "--direct", help="Mitsuba's path tracer (a Monte Carlo "
+                                "reference) instead of the transport's exact pixel integrals."),
     seed: int = typer.Option(0, "--seed", help="Noise (and direct sampler) seed."),
     sampling: str = typer.Option("box", "--band-sampling", help="box: whole band; centre: "
                                  "band centre only."),
@@ -32,7 +32,7 @@ def render(
     from recon.errors import InputError
     from scenes.registry import get_scene
     from sim.design import get_design, parse_overrides
-    from sim.frame import simulate_frame, write_frame
+    from sim.frame import scene_grid, simulate_frame, write_frame
 
     if spp is not None and spp < 1:
         raise InputError(f"--spp must be at least 1, got {spp}")
@@ -41,8 +41,7 @@ def render(
     if sampling not in ("box", "centre"):
         raise InputError(f"--band-sampling must be box or centre, got {sampling!r}")
     d = get_design(design, parse_overrides(set_))
-    v = d.view_size_px
-    cube, wl = get_scene(scene, shape=(v, v), wavelengths=d.wavelengths)
+    cube, wl = get_scene(scene, shape=scene_grid(d, scene), wavelengths=d.wavelengths)
     t0 = time.perf_counter()
     frame, meta = simulate_frame(d, cube, wl, direct=direct, spp=spp, seed=seed,
                                  sampling=sampling, wavelength_nm=wavelength, noise=noise,

@@ -175,7 +175,8 @@ def test_demo_is_the_run_of_the_default_scene(capsys):
     # tests/kaleidospec/test_cli_run.py runs the same pipeline on a reduced design.
     from kaleidospec.commands import demo
 
-    assert demo.DEFAULT_SCENE == "colorchecker" and demo.DEFAULT_MODEL == "footprint"
+    # A scene no calibration capture shows (the ColorChecker fits the gains).
+    assert demo.DEFAULT_SCENE == "natural" and demo.DEFAULT_MODEL == "footprint"
     code, stdout, err = run(["demo", "--help"], capsys)
     assert code in (0, None) and "--out" in stdout and "--model" in stdout
     code, _, err = run(["demo", "--model", "exact"], capsys)

@@ -62,68 +62,60 @@ def test_truth_on_grid_matches_the_reconstruction_grid(setup):
 
 
 def test_band_offsets_follow_where_the_simulator_puts_each_band(setup):
-    """Every band's calibrated offset moves with the mean position of its light (the
-    transport's own pixel - texel column, centre view), first and last bands included: their
-    nominal wavelengths sit at their intervals' edges, 1.5 px from the mean for 50 nm bands."""
+    """Every band's calibrated offset moves with the mean position of its light (the traced
+    maps: pixel column minus the texel column it sees, averaged over the centre view's box and
+    the band's wavelength nodes), first and last bands included: their nominal wavelengths sit
+    at their intervals' edges, 1.5 px from the mean for 50 nm bands."""
     pipeline, d, cal, frame, meta, truth, wl = setup
-    from sim.transport import load_or_build
+    from sim.maps import evaluate, legendre_values
+    from sim.pixel_integral import node_weights
+    from sim.transport import SEEDS, load_or_build
 
     v = d.view_size_px
-    tr = load_or_build(d, (v, v), wl)
+    tr = load_or_build(d, wl, seed=SEEDS["scene"])
+    m, k = tr.maps, tr.views.index(0)
     y0, x0, h, w = cal.view_boxes[cal.view_ids.index(0)]
+    rows, cols = np.arange(y0, y0 + h) + 0.5, np.arange(x0, x0 + w) + 0.5
+    pr = legendre_values((rows - m.norm[k, 0]) / m.norm[k, 1], m.degree)
+    pc = legendre_values((cols - m.norm[k, 2]) / m.norm[k, 3], m.degree)
     mean = np.empty(wl.size)
-    for l in range(wl.size):
-        py, px = np.divmod(tr.pix[l].astype(np.int64), tr.sensor[1])
-        keep = (py >= y0) & (py < y0 + h) & (px >= x0) & (px < x0 + w)
-        tx = tr.tex[l][keep] % v
-        mean[l] = np.average(px[keep] - tx, weights=tr.w[l][keep])
+    for l, nodes in enumerate(tr.band_nodes):
+        off = 0.0
+        for j, wt in zip(nodes, node_weights(len(nodes))):
+            tx = (m.relay[k, 0] + m.relay[k, 1] * evaluate(m.mask[k, j, 0], pr, pc)) * v
+            off += wt * float(np.mean(cols[None, :] - tx))
+        mean[l] = off
     o = cal.offsets[cal.view_ids.index(0)]
     np.testing.assert_allclose(o - o[0], mean - mean[0], atol=0.15)
 
 
-def test_more_views_reconstruct_better(setup):
+#: PSNR (dB) at this test size: the 50 nm ``small`` design, the ColorChecker at twice the
+#: grid through the scene frames' own trace, FISTA-TV with the pipeline's defaults, measured
+#: with the calibration from its own captures and with the exact operator traced with its own
+#: seed.  Honest figures: no capture shares the frame's realisation (tests/sim/test_transport.py
+#: checks the realisations converge).  A change that moves one by more than TOLERANCE_DB, up or
+#: down, must say why (and update these).
+FIGURES = {("shifted", 1): 17.31, ("shifted", 5): 26.06, ("footprint", 1): 16.65,
+           ("footprint", 5): 30.15, ("oracle", 1): 16.65, ("oracle", 5): 30.28}
+TOLERANCE_DB = 0.3
+
+
+@pytest.fixture(scope="module")
+def oracle_psnr(setup):
     pipeline, d, cal, frame, meta, truth, wl = setup
-    res = {}
+    return {n: pipeline.reconstruct_oracle(frame, meta, d, n, truth=truth)[1]["metrics"]["psnr"]
+            for n in (1, 5)}
+
+
+def test_shifted_model_figures(setup, oracle_psnr):
+    pipeline, d, cal, frame, meta, truth, wl = setup
     for n in (1, 5):
         cube, info = pipeline.reconstruct_views(frame, meta, cal, n, truth=truth)
         assert cube.shape == tuple(cal.cube_shape)
-        res[n] = info["metrics"]["psnr"]
-    assert res[5] > res[1]
-    flat = np.full_like(info["truth_grid"], info["truth_grid"].mean())
-    from recon.metrics import psnr
-
-    assert res[1] > psnr(flat, info["truth_grid"]) + 3
-
-
-#: Measured on this design and frame (FISTA-TV, the pipeline's defaults, 5 views): the exact
-#: operator reaches 36.6 dB, the calibrated one 25.7 dB.  The exact operator is the transport
-#: the frame was rendered with, so it knows which texel and wavelength each of a pixel's 4 rays
-#: met; the same optics traced with another seed reach 17.1 dB (see the next test).  The margin
-#: is the measured gap plus 1 dB: a regression guard, not a target.
-ORACLE_MARGIN_DB = 12.0
-
-
-def test_calibrated_is_within_a_margin_of_the_oracle(setup):
-    pipeline, d, cal, frame, meta, truth, wl = setup
-    _, info = pipeline.reconstruct_views(frame, meta, cal, 5, truth=truth)
-    _, oinfo = pipeline.reconstruct_oracle(frame, meta, d, 5, truth=truth)
-    gap = oinfo["metrics"]["psnr"] - info["metrics"]["psnr"]
-    assert gap < ORACLE_MARGIN_DB, (oinfo["metrics"]["psnr"], info["metrics"]["psnr"])
-
-
-def test_calibrated_is_within_1db_of_the_retraced_exact_operator(setup):
-    """The exact operator traced with another seed has the instrument's optics but not this
-    frame's Monte Carlo draw (which texel and wavelength each of a pixel's 4 rays met).  At
-    the instrument's 4 rays it carries its own draw's error (0.24 relative per band and pixel,
-    ``tools/bench_sampler.py``), so it is not the converged physics (on `small`, a 32-sample Sobol
-    trace reconstructs the ColorChecker 2.3 dB better than calibration; README), but it is
-    what any operator traced like the instrument reaches: calibration must stay within 1 dB."""
-    pipeline, d, cal, frame, meta, truth, wl = setup
-    _, info = pipeline.reconstruct_views(frame, meta, cal, 5, truth=truth)
-    op = pipeline.oracle_operator(d, 5, seed=1)
-    _, oinfo = pipeline.reconstruct_oracle(frame, meta, d, 5, truth=truth, op=op)
-    assert info["metrics"]["psnr"] > oinfo["metrics"]["psnr"] - 1.0, \
-        (oinfo["metrics"]["psnr"], info["metrics"]["psnr"])
+        got = info["metrics"]["psnr"]
+        assert abs(got - FIGURES[("shifted", n)]) < TOLERANCE_DB, (n, got)
+    for n in (1, 5):
+        assert abs(oracle_psnr[n] - FIGURES[("oracle", n)]) < TOLERANCE_DB, (n, oracle_psnr[n])
 
 
 @pytest.fixture(scope="module")
@@ -132,19 +124,19 @@ def footprint_cal(setup):
     return pipeline.calibrate(d, progress=False, footprint=True)
 
 
-def test_footprint_model_is_within_1db_of_the_exact_operator(setup, footprint_cal):
-    """The issue's target: the footprint model, measured with comb captures, reconstructs within
-    1 dB of the exact operator (the transport the frame was rendered with) with 1 and 5 views,
-    where the shifted model trails it by ~11 dB at 5 views (ORACLE_MARGIN_DB)."""
+def test_footprint_model_is_within_1db_of_the_exact_operator(setup, footprint_cal,
+                                                              oracle_psnr):
+    """The footprint model, measured with comb captures, reconstructs within 1 dB of the
+    converged exact operator with 1 and 5 views at this size (the shifted model trails it by
+    4.2 dB at 5 views), and at its measured figures."""
     pipeline, d, cal, frame, meta, truth, wl = setup
     for n in (1, 5):
         cube, info = pipeline.reconstruct_views(frame, meta, footprint_cal, n, truth=truth,
                                                 model="footprint")
         assert cube.shape == truth.shape                 # the comb target's grid is the scene's
-        assert info["truth_grid"] is truth or np.array_equal(info["truth_grid"], truth)
-        _, oinfo = pipeline.reconstruct_oracle(frame, meta, d, n, truth=truth)
-        assert info["metrics"]["psnr"] > oinfo["metrics"]["psnr"] - 1.0, \
-            (n, oinfo["metrics"]["psnr"], info["metrics"]["psnr"])
+        got = info["metrics"]["psnr"]
+        assert got > oracle_psnr[n] - 1.0, (n, oracle_psnr[n], got)
+        assert abs(got - FIGURES[("footprint", n)]) < TOLERANCE_DB, (n, got)
 
 
 def test_footprint_calibration_is_cached_with_its_own_gains(setup, footprint_cal, cache):

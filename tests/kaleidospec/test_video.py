@@ -274,7 +274,7 @@ def test_renderer_matches_simulate_frame_and_never_retraces(tiny):
     v = tiny.view_size_px
     anim = RotatingColorwheel((v, v), tiny.wavelengths, n_frames=3, speed_deg_s=45)
     r = FrameRenderer(tiny, (v, v), tiny.wavelengths)
-    traced = transport.STATS["traced_bands"]
+    built = transport.STATS["built"]
     cube = anim.frame(1)
     s = r.exposure_for(cube)
     ref, meta = simulate_frame(tiny, cube, tiny.wavelengths, noise=False)
@@ -284,7 +284,7 @@ def test_renderer_matches_simulate_frame_and_never_retraces(tiny):
     assert np.abs(mine - ref).max() <= 1 and np.mean(mine == ref) > 0.99
     for i in range(3):
         r.render(anim.frame(i), radiance_scale=s, seed=[0, i])
-    assert transport.STATS["traced_bands"] == traced  # only gathers after the first build
+    assert transport.STATS["built"] == built  # only pixel integrals after the first trace
     noisy = [r.render(cube, radiance_scale=s, seed=[0, k]) for k in (1, 1, 2)]
     np.testing.assert_array_equal(noisy[0], noisy[1])
     assert not np.array_equal(noisy[0], noisy[2])

@@ -74,7 +74,11 @@ def test_mean_electrons_radiometry():
     e = np.full((4, 5, wl.size), 1e-3, np.float32)  # W m^-2 nm^-1
     got = sensor.mean_electrons(e, d)
     h, c = 6.62607015e-34, 2.99792458e8
-    expected = sum(1e-3 * (20e-6) ** 2 * 0.1 * 25.0 * lam * 1e-9 / (h * c) for lam in wl)
+    # The filter passes 450–700 nm: the end bands' boxes are cut in half (12.5 of 25 nm).
+    widths = np.full(wl.size, 25.0)
+    widths[[0, -1]] = 12.5
+    expected = sum(1e-3 * (20e-6) ** 2 * 0.1 * dl * lam * 1e-9 / (h * c)
+                   for dl, lam in zip(widths, wl))
     assert np.allclose(got, expected, rtol=1e-5)
     assert np.allclose(sensor.mean_electrons(e, d.replace(exposure_ms=200.0)), 2 * got, rtol=1e-6)
     qe = sensor.quantum_efficiency("mono_cmos", np.arange(400, 721, 5))
@@ -99,3 +103,38 @@ def test_capture_auto_exposure_and_bad_input():
         sensor.capture(bad, SMALL)
     with pytest.raises(InputError):
         sensor.quantum_efficiency("nope", 500.0)
+
+
+def test_end_bands_count_the_photons_their_filter_passes():
+    """A flat white scene: the first and last bands' intervals are half as wide inside the
+    450–700 nm filter, so per unit irradiance they collect half the electrons of a full band
+    at the same wavelength and QE (it was twice that, the full step)."""
+    from sim.bands import band_intervals, band_widths
+
+    d = SMALL.replace(qe_curve="flat")
+    iv = band_intervals(d)
+    assert iv[0].tolist() == [450.0, 462.5] and iv[-1].tolist() == [687.5, 700.0]
+    np.testing.assert_allclose(band_widths(d), [12.5] + [25.0] * 9 + [12.5])
+    scale = sensor.electron_scale(d)
+    per_nm = scale / (d.wavelengths * band_widths(d))       # QE flat: the same for every band
+    np.testing.assert_allclose(per_nm, per_nm[1], rtol=1e-12)
+    assert scale[0] / scale[1] == pytest.approx(0.5 * 450 / 475, rel=1e-12)
+
+
+def test_blur_views_equals_the_full_blur_around_the_views():
+    d = SMALL
+    rects = [d.view_rect(v) for v in d.views]
+    rng = np.random.default_rng(0)
+    img = np.zeros((d.sensor_height_px, d.sensor_width_px), np.float32)
+    for r0, c0, h, w in rects:
+        img[r0:r0 + h, c0:c0 + w] = rng.random((h, w))
+    k = sensor.airy_kernel(1.7)
+    full = sensor.airy_blur(img, kernel=k)
+    part = sensor.blur_views(img, k, rects)
+    np.testing.assert_allclose(part, full, atol=1e-6)
+    # Only where the blur reaches from a view is there anything to compute.
+    reach = np.zeros(img.shape, bool)
+    r = k.shape[0] // 2
+    for r0, c0, h, w in rects:
+        reach[max(r0 - r, 0):r0 + h + r, max(c0 - r, 0):c0 + w + r] = True
+    assert np.all(part[~reach] == 0) and np.abs(full[~reach]).max() < 1e-6

@@ -1,0 +1,90 @@
+"""The design's spectral bands: their edges, the wavelength interval each one integrates, and
+the check that a scene cube's bands are the design's.
+
+A band is a box in wavelength: band *l* (centre :math:`\\lambda_l`) holds the scene's radiance
+over :math:`[e_l, e_{l+1})`, the edges half-way between neighbouring centres and half a step
+beyond the outer ones (:func:`band_edges`).  The UV-IR cut filter passes only
+``[filter_min_nm, filter_max_nm]``, so a sensor pixel integrates band *l* over the interval
+:func:`band_intervals` gives: the band's box clipped to the filter.  With bands centred on the
+filter's edges (450 and 700 nm in both presets) the first and last intervals are half as wide
+as the others, and they receive half the photons (:func:`band_widths`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from recon.errors import InputError
+
+__all__ = ["band_edges", "band_intervals", "band_widths", "check_cube"]
+
+
+def band_edges(wavelengths, design) -> np.ndarray:
+    """Band boundaries (L+1,) nm: midpoints between centres, half a step beyond the ends."""
+    wl = np.asarray(wavelengths, dtype=np.float64)
+    step = float(design.band_step_nm)
+    if wl.size == 1:
+        return np.array([wl[0] - step / 2, wl[0] + step / 2])
+    mids = 0.5 * (wl[1:] + wl[:-1])
+    return np.concatenate([[wl[0] - (mids[0] - wl[0])], mids, [wl[-1] + (wl[-1] - mids[-1])]])
+
+
+def band_intervals(design, wavelengths=None, sampling: str = "box") -> np.ndarray:
+    """Wavelength interval (L, 2) sampled for each band.
+
+    ``box``: the whole band, between midpoints of neighbouring centres, clipped to the filter
+    (what a sensor pixel integrates; bands then carry their own dispersion blur). ``centre``:
+    the band centre only (a monochromatic image per band, the discrete forward model of
+    DESIGN.md §2).
+    """
+    wl = design.wavelengths if wavelengths is None else np.asarray(wavelengths, np.float64)
+    if sampling == "centre":
+        return np.stack([wl, wl], axis=1)
+    if sampling != "box":
+        raise InputError(f"band sampling must be 'box' or 'centre', got {sampling!r}")
+    e = band_edges(wl, design)
+    lo = np.maximum(e[:-1], design.filter_min_nm)
+    hi = np.minimum(e[1:], design.filter_max_nm)
+    return np.stack([lo, hi], axis=1)
+
+
+def band_widths(design, wavelengths=None) -> np.ndarray:
+    """(L,) nm of each band that reaches the sensor: its interval's width (:func:`band_intervals`,
+    the box clipped to the filter; never negative).
+
+    The sensor counts :math:`\\Delta\\lambda_l\\,\\bar E_l` photons' worth of irradiance from a
+    band whose mean spectral irradiance over its interval is :math:`\\bar E_l`, so an end band
+    cut in half by the filter counts half.
+    """
+    iv = band_intervals(design, wavelengths, "box")
+    return np.maximum(iv[:, 1] - iv[:, 0], 0.0)
+
+
+def check_cube(design, cube, wavelengths):
+    """Validate a scene cube against the design; returns (cube float32 (H, W, L), wavelengths).
+
+    Raises :class:`InputError` for a wrong shape, non-finite or negative values, or wavelengths
+    that are not bands of the design (tolerance 1e-3 nm).
+    """
+    c = np.asarray(cube)
+    if c.ndim == 2:
+        c = c[:, :, None]
+    wl = np.atleast_1d(np.asarray(wavelengths, dtype=np.float64))
+    if c.ndim != 3 or c.shape[2] != wl.size or c.shape[0] < 1 or c.shape[1] < 1:
+        raise InputError(
+            f"the scene cube must be (H, W, L) with L = {wl.size} wavelengths, got shape {c.shape}"
+        )
+    if not np.all(np.isfinite(wl)):
+        raise InputError("the cube's wavelengths must be finite")
+    if not np.all(np.isfinite(c)):
+        raise InputError("the scene cube has non-finite values (NaN or inf)")
+    if np.any(c < 0):
+        raise InputError("the scene cube has negative radiance")
+    bands = design.wavelengths
+    for x in wl:
+        if np.min(np.abs(bands - x)) > 1e-3:
+            raise InputError(
+                f"wavelength {x:g} nm is not a band of the design "
+                f"({bands[0]:g}–{bands[-1]:g} nm, step {design.band_step_nm:g})"
+            )
+    return c.astype(np.float32, copy=False), wl

@@ -1,0 +1,683 @@
+r"""The pixel integral: each pixel's footprint integrated exactly over mask cells and texels.
+
+A pixel :math:`p` of view :math:`k` records in band :math:`l` (interval :math:`[\lambda_0,
+\lambda_1]`) the mean, over its area and the band, of what it sees through the optics
+(:mod:`sim.maps`):
+
+.. math:: E_l(p) = \tau_l(p)\; \frac{1}{\lambda_1 - \lambda_0} \int_{\lambda_0}^{\lambda_1}
+          \frac{1}{|p|} \int_p M_k\big(m(s, \lambda)\big)\, f_l\big(\alpha_k + \beta_k\,
+          m(s, \lambda)\big)\; ds\, d\lambda,
+
+with :math:`m` the mask-plane point a sensor point sees, :math:`M_k` the mask restricted to the
+cells of view :math:`k`'s code region (0/1), :math:`f_l` the scene's band (piecewise constant
+on texels) and :math:`\tau_l` the band's throughput at the pixel (vignetting and losses,
+:func:`throughput_image`).  Within a pixel the map :math:`m` is affine and axis-aligned (its
+shear and rotation across one pixel are below 10⁻³ px), so the footprint at one wavelength is a
+rectangle :math:`[a, b] \times [y_0, y_1]` in mask coordinates, and as λ runs through a segment
+between two wavelength nodes its x-edges move linearly.  The integral then separates:
+
+1. *Rows* (stage 1).  Along the footprint's height, :math:`g(x) = \frac{1}{y_1 - y_0}
+   \int_{y_0}^{y_1} M_k f\, dy` is piecewise constant on the *partition* of the mask's x axis by
+   the mask-cell and texel column boundaries (:func:`partition`); each piece of
+   :math:`[y_0, y_1]` between mask-row and texel-row boundaries contributes its length exactly.
+2. *Columns and wavelength* (stage 2).  With :math:`G = \int g` and :math:`GG = \int G` (exact,
+   piecewise linear and quadratic), the mean over a segment of an edge moving from :math:`x_0`
+   to :math:`x_1` is :math:`\overline{G} = (GG(x_1) - GG(x_0))/(x_1 - x_0)`, so
+
+   .. math:: E_l(p) = \tau_l(p)\, \frac{1}{S} \sum_{s=1}^{S}
+             \frac{\overline{G}_s(b) - \overline{G}_s(a)}{\bar w_s},
+
+   with :math:`\bar w_s` the footprint's mean width over segment :math:`s` (the edges of
+   neighbouring pixels are shared).
+
+Nothing is sampled: the result is the integral itself, up to the maps' fit (~10⁻³ px) and the
+straight-line motion of an edge between nodes (≤ ``tolerance_px`` of :func:`sim.maps.band_nodes`).
+:func:`band_forward` and its exact adjoint :func:`band_adjoint` (a dot test checks it) are
+Numba kernels for one view and one band; :class:`sim.transport.Transport` runs bands on threads.
+:math:`G` and :math:`GG` are float64: they accumulate over a whole row (~2000 pieces on
+``paper``) and the differences taken between neighbouring edges would lose every digit in
+float32.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+__all__ = ["disc_fraction", "throughput_images", "node_weights", "partition",
+           "band_forward", "band_adjoint", "RowGeometry", "COARSE_PX"]
+
+
+# ------------------------------------------------------------------------------ vignetting
+@njit(cache=True, nogil=True)
+def _triangle_disc(ax, ay, bx, by):
+    """Signed area of the unit disc ∩ triangle (0, a, b)."""
+    dx, dy = bx - ax, by - ay
+    qa = dx * dx + dy * dy
+    qb = ax * dx + ay * dy
+    qc = ax * ax + ay * ay - 1.0
+    ts = np.empty(4)
+    n = 0
+    ts[n] = 0.0
+    n += 1
+    if qa > 0.0:
+        disc = qb * qb - qa * qc
+        if disc > 0.0:
+            sq = math.sqrt(disc)
+            for t in ((-qb - sq) / qa, (-qb + sq) / qa):
+                if 0.0 < t < 1.0:
+                    ts[n] = t
+                    n += 1
+    ts[n] = 1.0
+    n += 1
+    total = 0.0
+    for i in range(n - 1):
+        px, py = ax + ts[i] * dx, ay + ts[i] * dy
+        qx, qy = ax + ts[i + 1] * dx, ay + ts[i + 1] * dy
+        mx, my = 0.5 * (px + qx), 0.5 * (py + qy)
+        cross = px * qy - py * qx
+        if mx * mx + my * my <= 1.0:
+            total += 0.5 * cross
+        else:
+            total += 0.5 * math.atan2(cross, px * qx + py * qy)
+    return total
+
+
+@njit(cache=True, nogil=True)
+def _disc_fraction(bx, by, a00, a10, a01, a11, half):
+    """Fraction of the unit disc u whose image b + A u lies in the square [-half, half]²."""
+    n0 = math.hypot(a00, a01)     # reach of row 0 of A over the disc
+    n1 = math.hypot(a10, a11)
+    if abs(bx) + n0 <= half and abs(by) + n1 <= half:
+        return 1.0
+    if abs(bx) - n0 >= half or abs(by) - n1 >= half:
+        return 0.0
+    det = a00 * a11 - a01 * a10
+    if abs(det) < 1e-300:
+        return 0.0
+    # The square's corners pulled back into disc coordinates: a parallelogram, counter-clockwise
+    # when det > 0.
+    cx = np.array([-half, half, half, -half])
+    cy = np.array([-half, -half, half, half])
+    ux = np.empty(4)
+    uy = np.empty(4)
+    for i in range(4):
+        rx, ry = cx[i] - bx, cy[i] - by
+        ux[i] = (a11 * rx - a01 * ry) / det
+        uy[i] = (-a10 * rx + a00 * ry) / det
+    area = 0.0
+    for i in range(4):
+        j = (i + 1) % 4
+        area += _triangle_disc(ux[i], uy[i], ux[j], uy[j])
+    return min(max(abs(area) / math.pi, 0.0), 1.0)
+
+
+@njit(cache=True, nogil=True)
+def _disc_fraction_grid(ex, half, out):
+    h, w = out.shape
+    for i in range(h):
+        for j in range(w):
+            out[i, j] = _disc_fraction(ex[0, i, j], ex[1, i, j], ex[2, i, j], ex[3, i, j],
+                                       ex[4, i, j], ex[5, i, j], half)
+
+
+def disc_fraction(b, a, half: float) -> np.ndarray:
+    """Fraction of the unit disc :math:`u` with :math:`b + A u` in :math:`[-h, h]^2`.
+
+    Parameters
+    ----------
+    b : array_like (2, ...)
+        Image of the disc's centre.
+    a : array_like (2, 2, ...)
+        The affine map's matrix (``a[:, 0]``, ``a[:, 1]``: images of the disc's unit vectors).
+    half : float
+        Half the square's side (the tube's exit).
+
+    Exact: the square pulled back into disc coordinates is a parallelogram, and the disc ∩
+    polygon area is a sum of disc ∩ triangle areas over its edges.
+    """
+    b = np.asarray(b, np.float64)
+    a = np.asarray(a, np.float64)
+    shape = b.shape[1:]
+    ex = np.stack([b[0], b[1], a[0, 0], a[1, 0], a[0, 1], a[1, 1]]).reshape(6, 1, -1)
+    out = np.empty((1, ex.shape[2]))
+    _disc_fraction_grid(np.ascontiguousarray(ex), float(half), out)
+    return out.reshape(shape)
+
+
+#: Spacing (px) of the coarse grid on which the smooth throughput T is interpolated.
+COARSE_PX = 8
+
+
+@njit(cache=True, nogil=True)
+def _bilinear(coarse, step, h, w, out):
+    """Bilinear interpolation of ``coarse`` (values at pixel centres 0.5 + step·i) to (h, w)."""
+    nr, nc = coarse.shape
+    for i in range(h):
+        y = i / step
+        iy = min(int(y), nr - 2)
+        fy = y - iy
+        for j in range(w):
+            x = j / step
+            ix = min(int(x), nc - 2)
+            fx = x - ix
+            out[i, j] = ((1 - fy) * ((1 - fx) * coarse[iy, ix] + fx * coarse[iy, ix + 1])
+                         + fy * ((1 - fx) * coarse[iy + 1, ix] + fx * coarse[iy + 1, ix + 1]))
+
+
+@njit(cache=True, nogil=True)
+def _exact_tau(pr, pc, coef_t, coef_e, wts, half, todo, out):
+    """τ = Σ_j w_j V_j T_j at the pixels flagged in ``todo`` (polynomials folded per row)."""
+    h, w = todo.shape
+    n, D = coef_t.shape[0], coef_t.shape[1]
+    rt = np.zeros((n, D))
+    re = np.zeros((n, 6, D))
+    for i in range(h):
+        any_ = False
+        for j in range(w):
+            if todo[i, j]:
+                any_ = True
+                break
+        if not any_:
+            continue
+        for k in range(n):
+            for b in range(D):
+                acc = 0.0
+                for a in range(D):
+                    acc += pr[i, a] * coef_t[k, a, b]
+                rt[k, b] = acc
+                for q in range(6):
+                    acc = 0.0
+                    for a in range(D):
+                        acc += pr[i, a] * coef_e[k, q, a, b]
+                    re[k, q, b] = acc
+        for j in range(w):
+            if not todo[i, j]:
+                continue
+            tot = 0.0
+            for k in range(n):
+                t = 0.0
+                for b in range(D):
+                    t += rt[k, b] * pc[j, b]
+                ex = np.zeros(6)
+                for q in range(6):
+                    for b in range(D):
+                        ex[q] += re[k, q, b] * pc[j, b]
+                v = _disc_fraction(ex[0], ex[1], ex[2], ex[3], ex[4], ex[5], half)
+                tot += wts[k] * v * max(t, 0.0)
+            out[i, j] = tot
+
+
+def node_weights(n: int) -> np.ndarray:
+    """Trapezoid weights of ``n`` equally spaced nodes over a band (one node: 1)."""
+    w = np.ones(n)
+    if n > 1:
+        w[0] = w[-1] = 0.5
+    return w / w.sum()
+
+
+def throughput_images(maps, k: int, band_nodes) -> list:
+    r"""Every band's throughput τ at the pixel centres of view ``k``: (h, w) float32 each.
+
+    τ is the mean over the band's wavelength nodes (trapezoid rule) of :math:`V\,T`
+    (:mod:`sim.maps`).  T is smooth (a low-order polynomial) and is interpolated bilinearly
+    from a grid every :data:`COARSE_PX` pixels (error < 10⁻⁵ of T); V is 1 away from the
+    stop's shadow, and wherever a coarse cell may be partly vignetted at any node of the band
+    (its corners' disc images within the cell's variation of the square's edge) τ is evaluated
+    exactly at every pixel.
+    """
+    from sim.maps import evaluate, legendre_values
+
+    r0, c0, h, w = (int(v) for v in maps.rects[k])
+    rc, sr, cc, sc = maps.norm[k]
+    D = maps.degree
+    pr = legendre_values((np.arange(h) + r0 + 0.5 - rc) / sr, D)
+    pc = legendre_values((np.arange(w) + c0 + 0.5 - cc) / sc, D)
+    s = COARSE_PX
+    gr = np.arange(0, h - 1 + s, s, dtype=np.float64)
+    gc = np.arange(0, w - 1 + s, s, dtype=np.float64)
+    gpr = legendre_values((gr + r0 + 0.5 - rc) / sr, D)
+    gpc = legendre_values((gc + c0 + 0.5 - cc) / sc, D)
+    used = sorted({int(j) for b in band_nodes for j in b})
+    t_coarse = {j: evaluate(maps.throughput[k, j], gpr, gpc) for j in used}
+    clean = {}
+    stop = maps.has_stop and np.all(np.isfinite(maps.exit[k]))
+    for j in used:
+        if not stop:
+            clean[j] = np.ones((gr.size - 1, gc.size - 1), bool)
+            continue
+        e = [evaluate(maps.exit[k, j, q], gpr, gpc) for q in range(6)]
+        slack = maps.stop_half - np.maximum(np.abs(e[0]) + np.hypot(e[2], e[4]),
+                                            np.abs(e[1]) + np.hypot(e[3], e[5]))
+        # A cell is clean when its corners clear the square by more than the slack changes
+        # between neighbouring corners (the maps are smooth over 8 px).
+        var = max(float(np.abs(np.diff(slack, axis=0)).max(initial=0.0)),
+                  float(np.abs(np.diff(slack, axis=1)).max(initial=0.0)))
+        ok = slack > 2.0 * var
+        clean[j] = ok[:-1, :-1] & ok[1:, :-1] & ok[:-1, 1:] & ok[1:, 1:]
+    out = []
+    fine = np.empty((h, w))
+    for nodes in band_nodes:
+        nodes = [int(j) for j in nodes]
+        wts = node_weights(len(nodes))
+        tavg = sum(wt * np.maximum(t_coarse[j], 0.0) for j, wt in zip(nodes, wts))
+        _bilinear(tavg, float(s), h, w, fine)
+        cell_ok = np.logical_and.reduce([clean[j] for j in nodes])
+        todo = ~np.repeat(np.repeat(cell_ok, s, axis=0), s, axis=1)[:h, :w]
+        if todo.any():
+            _exact_tau(pr, pc, np.ascontiguousarray(maps.throughput[k, nodes]),
+                       np.ascontiguousarray(np.nan_to_num(maps.exit[k, nodes])), wts,
+                       maps.stop_half, np.ascontiguousarray(todo), fine)
+        out.append(fine.astype(np.float32))
+    return out
+
+
+# ------------------------------------------------------------------------------ partition
+def partition(relay, width: int, x_range, n_cells: int):
+    """The mask's x axis cut at every mask-cell and texel column boundary.
+
+    Parameters
+    ----------
+    relay : (4,) α_x, β_x, α_y, β_y
+        Texel column of mask column coordinate m: floor((α_x + β_x m) · width).
+    width : int
+        The cube's columns.
+    x_range : (lo, hi)
+        The mask-x span to cover.
+    n_cells : int
+        Mask cells per side.
+
+    Returns
+    -------
+    xb : (n+1,) float64 breakpoints; mcol, tcol : (n,) int64 the mask and texel column of each
+    piece (−1 outside the mask or the cube).
+    """
+    ax, bx = float(relay[0]), float(relay[1])
+    lo, hi = float(x_range[0]), float(x_range[1])
+    cells = np.arange(math.floor(lo), math.ceil(hi) + 1, dtype=np.float64)
+    t_lo, t_hi = sorted(((ax + bx * lo) * width, (ax + bx * hi) * width))
+    ts = np.arange(math.floor(t_lo), math.ceil(t_hi) + 1, dtype=np.float64)
+    tex = (ts / width - ax) / bx
+    xb = np.unique(np.concatenate([cells, tex, [lo, hi]]))
+    xb = xb[(xb >= lo) & (xb <= hi)]
+    mid = 0.5 * (xb[1:] + xb[:-1])
+    mcol = np.floor(mid).astype(np.int64)
+    mcol[(mcol < 0) | (mcol >= n_cells)] = -1
+    tcol = np.floor((ax + bx * mid) * width).astype(np.int64)
+    tcol[(tcol < 0) | (tcol >= width)] = -1
+    return xb, mcol, tcol
+
+
+# ------------------------------------------------------------------------------ row geometry
+class RowGeometry:
+    """What the kernels need of one view and one band, as plain arrays.
+
+    ``cx`` (n, D, D): the mask-x polynomial at each of the band's nodes; ``cy`` (D, D): the
+    mask-y polynomial averaged over them; ``pre``/``prc`` (h+1, D)/(h, D): row polynomials at
+    the pixel rows' edges and centres; ``pce``/``pcc`` (w+1, D)/(w, D): column polynomials at
+    the pixel columns' edges and centres.
+    """
+
+    def __init__(self, maps, k: int, nodes):
+        from sim.maps import legendre_values
+
+        r0, c0, h, w = (int(v) for v in maps.rects[k])
+        rc, sr, cc, sc = maps.norm[k]
+        D = maps.degree
+        self.h, self.w = h, w
+        self.pre = legendre_values((np.arange(h + 1) + r0 - rc) / sr, D)
+        self.prc = legendre_values((np.arange(h) + r0 + 0.5 - rc) / sr, D)
+        self.pce = legendre_values((np.arange(w + 1) + c0 - cc) / sc, D)
+        self.pcc = legendre_values((np.arange(w) + c0 + 0.5 - cc) / sc, D)
+        self.cx = np.ascontiguousarray(maps.mask[k, list(nodes), 0])
+        self.cy = np.ascontiguousarray(maps.mask[k, list(nodes), 1].mean(axis=0))
+
+    def x_range(self, margin: float = 2.0):
+        """The mask-x span of the view's pixel edges at the band's nodes, widened by ``margin``."""
+        from sim.maps import evaluate
+
+        xs = np.stack([evaluate(c, self.prc[[0, -1]], self.pce[[0, -1]]) for c in self.cx])
+        return float(xs.min()) - margin, float(xs.max()) + margin
+
+
+@njit(cache=True, nogil=True)
+def _row_edges(r, prc, pre, pce, pcc, cx, cy, X, Y0, Y1, XC):
+    """Mask-x of every pixel edge at every node (X, (w+1, n)), the footprints' y bounds (Y0, Y1)
+    and the pixels' centres in mask-x at the band's middle node (XC)."""
+    n, D = cx.shape[0], cx.shape[1]
+    w = pcc.shape[0]
+    cr = np.zeros((n, D))
+    for j in range(n):
+        for b in range(D):
+            acc = 0.0
+            for a in range(D):
+                acc += prc[r, a] * cx[j, a, b]
+            cr[j, b] = acc
+    ct = np.zeros(D)
+    cb = np.zeros(D)
+    for b in range(D):
+        for a in range(D):
+            ct[b] += pre[r, a] * cy[a, b]
+            cb[b] += pre[r + 1, a] * cy[a, b]
+    for e in range(w + 1):
+        for j in range(n):
+            acc = 0.0
+            for b in range(D):
+                acc += cr[j, b] * pce[e, b]
+            X[e, j] = acc
+    for c in range(w):
+        y0 = 0.0
+        y1 = 0.0
+        for b in range(D):
+            y0 += ct[b] * pcc[c, b]
+            y1 += cb[b] * pcc[c, b]
+        Y0[c] = min(y0, y1)
+        Y1[c] = max(y0, y1)
+    jm = n // 2
+    for c in range(w):
+        if n % 2 == 1:
+            XC[c] = 0.5 * (X[c, jm] + X[c + 1, jm])
+        else:
+            XC[c] = 0.25 * (X[c, jm - 1] + X[c + 1, jm - 1] + X[c, jm] + X[c + 1, jm])
+
+
+@njit(cache=True, nogil=True)
+def _row_pieces(Y0, Y1, ay, by, H, n_mask, plen, pmr, ptr_):
+    """Cut the row's y band at its mask-row and texel-row boundaries (lines shared by all its
+    pixels): each gap's mask row and texel row (−1 outside the mask or the cube), and every
+    pixel's share of its own span [Y0, Y1] in each gap.  Returns the number of gaps."""
+    w = Y0.shape[0]
+    pmax = plen.shape[1]
+    ylo = Y0[0]
+    yhi = Y1[0]
+    for c in range(w):
+        ylo = min(ylo, Y0[c])
+        yhi = max(yhi, Y1[c])
+    bounds = np.empty(pmax + 1)
+    k = 0
+    y = ylo
+    bounds[0] = ylo
+    while y < yhi and k < pmax:
+        nb = math.floor(y) + 1.0
+        t = (ay + by * y) * H
+        if by > 0.0:
+            yt = ((math.floor(t) + 1.0) / H - ay) / by
+        else:
+            yt = ((math.ceil(t) - 1.0) / H - ay) / by
+        ye = min(nb, yt, yhi)
+        if ye <= y:
+            ye = min(y + 1e-9, yhi)
+        ym = 0.5 * (y + ye)
+        mr = int(math.floor(ym))
+        tr = int(math.floor((ay + by * ym) * H))
+        pmr[k] = mr if 0 <= mr < n_mask else -1
+        ptr_[k] = tr if 0 <= tr < H else -1
+        k += 1
+        bounds[k] = ye
+        y = ye
+    for c in range(w):
+        y0, y1 = Y0[c], Y1[c]
+        inv = 1.0 / (y1 - y0) if y1 > y0 else 0.0
+        for g in range(k):
+            a = max(bounds[g], y0)
+            b = min(bounds[g + 1], y1)
+            plen[c, g] = (b - a) * inv if b > a else 0.0
+    return k
+
+
+def max_pieces(relay, height: int) -> int:
+    """Most pieces a pixel's y span can be cut into (texel rows it meets, a mask-row boundary
+    and rounding), for the kernels' scratch arrays."""
+    return 2 * int(math.ceil(abs(float(relay[3])) * height)) + 8
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _bracket(x, XC, c):
+    """(c, t): x lies between pixel centres XC[c] and XC[c+1], a fraction t of the way (c from
+    0 to w − 2, t clamped to [0, 1]); ``c`` starts the walk."""
+    w = XC.shape[0]
+    if w < 2:
+        return 0, 0.0
+    c = min(max(c, 0), w - 2)
+    while c < w - 2 and XC[c + 1] <= x:
+        c += 1
+    while c > 0 and XC[c] > x:
+        c -= 1
+    t = (x - XC[c]) / (XC[c + 1] - XC[c])
+    return c, min(max(t, 0.0), 1.0)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _locate(x, xb, lo, hi, ptr):
+    """Index k in [lo, hi] with xb[k] <= x < xb[k+1] (hi + 1: past the end; lo − 1: before)."""
+    if x < xb[lo]:
+        return lo - 1
+    if x >= xb[hi + 1]:
+        return hi + 1
+    if ptr < lo or ptr > hi:
+        ptr = lo
+    while ptr > lo and xb[ptr] > x:
+        ptr -= 1
+    while ptr < hi and xb[ptr + 1] <= x:
+        ptr += 1
+    return ptr
+
+
+@njit(cache=True, nogil=True)
+def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pce, pcc, cx, cy, tau,
+            out, fbar, adjoint, pmax):
+    h = prc.shape[0]
+    w = pcc.shape[0]
+    n = cx.shape[0]
+    nseg = max(n - 1, 1)
+    nint = mcol.shape[0]
+    ay, by = relay[2], relay[3]
+    X = np.empty((w + 1, n))
+    Y0 = np.empty(w)
+    Y1 = np.empty(w)
+    XC = np.empty(w)
+    g = np.zeros(nint)
+    G = np.zeros(nint + 1)
+    GG = np.zeros(nint + 1)
+    ag = np.zeros(nint)
+    aG = np.zeros(nint + 1)
+    aGG = np.zeros(nint + 1)
+    mG = np.empty((w + 1, nseg))
+    amG = np.zeros((w + 1, nseg))
+    ptrs = np.zeros(n, np.int64)
+    plen = np.zeros((w + 1, pmax))   # a last row repeated: _bracket's t = 0 for w = 1
+    pmr = np.zeros(pmax, np.int64)
+    ptr_ = np.zeros(pmax, np.int64)
+    n_mask = code.shape[0]
+    for r in range(h):
+        _row_edges(r, prc, pre, pce, pcc, cx, cy, X, Y0, Y1, XC)
+        ng = _row_pieces(Y0, Y1, ay, by, H, n_mask, plen, pmr, ptr_)
+        plen[w] = plen[w - 1]
+        xmin = X[0, 0]
+        xmax = X[w, 0]
+        for j in range(n):
+            xmin = min(xmin, X[0, j])
+            xmax = max(xmax, X[w, j])
+        lo = max(np.searchsorted(xb, xmin, side="right") - 1, 0)
+        hi = min(np.searchsorted(xb, xmax, side="left"), nint - 1)
+        if hi < lo:
+            continue
+        if not adjoint:
+            # Stage 1: the rows' mean of M f on every piece, then its integrals G and GG.
+            c = 0
+            G[lo] = 0.0
+            GG[lo] = 0.0
+            for i in range(lo, hi + 1):
+                acc = 0.0
+                mc = mcol[i]
+                tc = tcol[i]
+                if mc >= 0 and tc >= 0:
+                    # The y span at this piece: linear between the neighbouring pixels' centres
+                    # (it moves by ~1e-4 px from pixel to pixel).
+                    xm = 0.5 * (xb[i] + xb[i + 1])
+                    c, t = _bracket(xm, XC, c)
+                    for p in range(ng):
+                        mr = pmr[p]
+                        tr = ptr_[p]
+                        if mr >= 0 and tr >= 0 and code[mr, mc] == view:
+                            acc += (plen[c, p] + t * (plen[c + 1, p] - plen[c, p])) * f[tr, tc]
+                g[i] = acc
+                L = xb[i + 1] - xb[i]
+                GG[i + 1] = GG[i] + G[i] * L + 0.5 * acc * L * L
+                G[i + 1] = G[i] + acc * L
+            # Stage 2: each edge's mean of G over each segment (shared by neighbouring pixels).
+            for j in range(n):
+                ptrs[j] = lo
+            for e in range(w + 1):
+                for s in range(nseg):
+                    x0 = X[e, s]
+                    x1 = X[e, min(s + 1, n - 1)]
+                    if n > 1 and abs(x1 - x0) > 1e-9:
+                        k0 = _locate(x0, xb, lo, hi, ptrs[s])
+                        ptrs[s] = max(k0, lo)
+                        k1 = _locate(x1, xb, lo, hi, ptrs[min(s + 1, n - 1)])
+                        ptrs[min(s + 1, n - 1)] = max(k1, lo)
+                        mG[e, s] = (_gg(x1, k1, xb, g, G, GG, lo, hi)
+                                    - _gg(x0, k0, xb, g, G, GG, lo, hi)) / (x1 - x0)
+                    else:
+                        xm = 0.5 * (x0 + x1)
+                        k0 = _locate(xm, xb, lo, hi, ptrs[s])
+                        ptrs[s] = max(k0, lo)
+                        mG[e, s] = _g1(xm, k0, xb, g, G, lo, hi)
+            for c in range(w):
+                acc = 0.0
+                for s in range(nseg):
+                    wid = 0.5 * ((X[c + 1, s] - X[c, s])
+                                 + (X[c + 1, min(s + 1, n - 1)] - X[c, min(s + 1, n - 1)]))
+                    acc += (mG[c + 1, s] - mG[c, s]) / wid
+                out[r, c] = tau[r, c] * acc / nseg
+        else:
+            for i in range(lo, hi + 1):
+                ag[i] = 0.0
+            for i in range(lo, hi + 2):
+                aG[i] = 0.0
+                aGG[i] = 0.0
+            for e in range(w + 1):
+                for s in range(nseg):
+                    amG[e, s] = 0.0
+            for c in range(w):
+                eb = out[r, c] * tau[r, c] / nseg
+                if eb == 0.0:
+                    continue
+                for s in range(nseg):
+                    wid = 0.5 * ((X[c + 1, s] - X[c, s])
+                                 + (X[c + 1, min(s + 1, n - 1)] - X[c, min(s + 1, n - 1)]))
+                    amG[c + 1, s] += eb / wid
+                    amG[c, s] -= eb / wid
+            for j in range(n):
+                ptrs[j] = lo
+            for e in range(w + 1):
+                for s in range(nseg):
+                    a = amG[e, s]
+                    if a == 0.0:
+                        continue
+                    x0 = X[e, s]
+                    x1 = X[e, min(s + 1, n - 1)]
+                    if n > 1 and abs(x1 - x0) > 1e-9:
+                        k0 = _locate(x0, xb, lo, hi, ptrs[s])
+                        ptrs[s] = max(k0, lo)
+                        k1 = _locate(x1, xb, lo, hi, ptrs[min(s + 1, n - 1)])
+                        ptrs[min(s + 1, n - 1)] = max(k1, lo)
+                        aa = a / (x1 - x0)
+                        # ∂GG(x)/∂(GG_k, G_k, g_k) = (1, d, d²/2), d = x − xb_k, at both ends.
+                        for kk, xx, sg in ((k1, x1, 1.0), (k0, x0, -1.0)):
+                            if kk < lo:
+                                continue
+                            if kk > hi:
+                                aGG[hi + 1] += sg * aa
+                                aG[hi + 1] += sg * aa * (xx - xb[hi + 1])
+                                continue
+                            dd = xx - xb[kk]
+                            aGG[kk] += sg * aa
+                            aG[kk] += sg * aa * dd
+                            ag[kk] += sg * aa * 0.5 * dd * dd
+                    else:
+                        xm = 0.5 * (x0 + x1)
+                        k0 = _locate(xm, xb, lo, hi, ptrs[s])
+                        ptrs[s] = max(k0, lo)
+                        _g1_adj(xm, k0, a, xb, ag, aG, lo, hi)
+            # The integrals' recursions run backwards.
+            for i in range(hi, lo - 1, -1):
+                L = xb[i + 1] - xb[i]
+                ag[i] += aG[i + 1] * L + aGG[i + 1] * 0.5 * L * L
+                aG[i] += aG[i + 1] + aGG[i + 1] * L
+                aGG[i] += aGG[i + 1]
+            c = 0
+            for i in range(lo, hi + 1):
+                mc = mcol[i]
+                tc = tcol[i]
+                if ag[i] != 0.0 and mc >= 0 and tc >= 0:
+                    xm = 0.5 * (xb[i] + xb[i + 1])
+                    c, t = _bracket(xm, XC, c)
+                    for p in range(ng):
+                        mr = pmr[p]
+                        tr = ptr_[p]
+                        if mr >= 0 and tr >= 0 and code[mr, mc] == view:
+                            fbar[tr, tc] += ag[i] * (plen[c, p] + t * (plen[c + 1, p]
+                                                                       - plen[c, p]))
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _gg(x, k, xb, g, G, GG, lo, hi):
+    if k < lo:
+        return 0.0
+    if k > hi:
+        d = x - xb[hi + 1]
+        return GG[hi + 1] + d * G[hi + 1]
+    d = x - xb[k]
+    return GG[k] + d * (G[k] + 0.5 * d * g[k])
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _g1(x, k, xb, g, G, lo, hi):
+    if k < lo:
+        return 0.0
+    if k > hi:
+        return G[hi + 1]
+    return G[k] + (x - xb[k]) * g[k]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _g1_adj(x, k, a, xb, ag, aG, lo, hi):
+    if k < lo:
+        return
+    if k > hi:
+        aG[hi + 1] += a
+        return
+    aG[k] += a
+    ag[k] += a * (x - xb[k])
+
+
+def band_forward(f, code, view, relay, part, geom: RowGeometry, tau, out=None):
+    """Irradiance (h, w) float32 of one view in one band (module notes).
+
+    ``f`` (H, W) float32: the scene's band; ``code`` (n, n) int8: the view owning each open
+    mask cell (−1 chrome); ``part``: :func:`partition` for the view and the cube's width.
+    """
+    f = np.ascontiguousarray(f, np.float32)
+    if out is None:
+        out = np.zeros((geom.h, geom.w), np.float32)
+    xb, mcol, tcol = part
+    _kernel(f, code, int(view), np.asarray(relay, np.float64), f.shape[0], f.shape[1], xb, mcol,
+            tcol, geom.prc, geom.pre, geom.pce, geom.pcc, geom.cx, geom.cy, tau, out,
+            np.zeros((1, 1), np.float64), False, max_pieces(relay, f.shape[0]))
+    return out
+
+
+def band_adjoint(e, code, view, relay, part, geom: RowGeometry, tau, shape, fbar=None):
+    """The adjoint of :func:`band_forward`: (H, W) float64 accumulated into ``fbar``."""
+    e = np.ascontiguousarray(e, np.float32)
+    if fbar is None:
+        fbar = np.zeros(shape, np.float64)
+    xb, mcol, tcol = part
+    _kernel(np.zeros((1, 1), np.float32), code, int(view), np.asarray(relay, np.float64),
+            int(shape[0]), int(shape[1]), xb, mcol, tcol, geom.prc, geom.pre, geom.pce,
+            geom.pcc, geom.cx, geom.cy, tau, e, fbar, True, max_pieces(relay, shape[0]))
+    return fbar

@@ -1,0 +1,73 @@
+"""The traced optical maps: wavelength nodes, fits at the float32 round-off, the relay."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sim.design import get_design
+
+SMALL = get_design("small")
+
+
+def test_band_nodes_keep_the_dispersion_within_the_tolerance():
+    from sim.bands import band_intervals
+    from sim.maps import band_nodes
+
+    for d in (SMALL, get_design("paper")):
+        iv = band_intervals(d)
+        nodes, index = band_nodes(d, iv, 0.003)
+        assert np.all(np.diff(nodes) > 0)
+        for (lo, hi), idx in zip(iv, index):
+            nb = nodes[idx]
+            assert nb[0] == pytest.approx(lo) and nb[-1] == pytest.approx(hi)
+            dense = np.linspace(lo, hi, 301)
+            dev = np.interp(dense, nb, d.dispersion_px_at(nb)) - d.dispersion_px_at(dense)
+            assert np.abs(dev).max() <= 0.003
+            if len(idx) > 2:     # and no more nodes than that takes
+                fewer = np.linspace(lo, hi, len(idx) - 1)
+                dev = np.interp(dense, fewer, d.dispersion_px_at(fewer)) - d.dispersion_px_at(dense)
+                assert np.abs(dev).max() > 0.003
+        # Neighbouring bands share their common edge.
+        assert sum(len(i) for i in index) - (len(index) - 1) == nodes.size
+    # A monochromatic band is one node.
+    nodes, index = band_nodes(SMALL, [[550.0, 550.0]])
+    assert nodes.tolist() == [550.0] and index[0].tolist() == [0]
+
+
+def test_legendre_values_are_the_legendre_polynomials():
+    from numpy.polynomial import legendre
+
+    from sim.maps import legendre_values
+
+    x = np.linspace(-1.2, 1.2, 7)
+    got = legendre_values(x, 5)
+    for k in range(6):
+        np.testing.assert_allclose(got[:, k], legendre.legval(x, np.eye(6)[k]), atol=1e-12)
+
+
+@pytest.mark.mitsuba
+def test_maps_are_fitted_to_the_round_off_and_the_relay_is_the_minification(shared_cache,
+                                                                            monkeypatch):
+    pytest.importorskip("mitsuba")
+    from sim.transport import load_or_build
+
+    monkeypatch.setenv("KALEIDOSPEC_CACHE", str(shared_cache))
+    d = SMALL
+    m = load_or_build(d, seed=0).maps
+    # Mask positions within 1e-3 px (float32 round-off of 400 mm coordinates: ~5e-4 px per
+    # ray); the relay's affine map within 1e-3 px; the throughput within 0.1 %.
+    assert m.fit_rms[:, :3].max() < 1e-3 and m.fit_rms[:, 3].max() < 1e-3, m.fit_rms
+    # u = α + β m: |β| is a mask cell over the relay's minification, in scene sides.
+    from sim.diffuser import cube_region
+
+    side = cube_region(d, (1, 1)).dx
+    beta = d.mask_pitch_um * 1e-3 / d.minification / side
+    from sim.design import VIEW_GRID
+
+    for k, vid in enumerate(m.views):
+        r, c = VIEW_GRID[vid]
+        for q, flipped in ((1, c != 1), (3, r != 1)):
+            assert abs(abs(m.relay[k, q]) / beta - 1) < 1e-4, (vid, q)
+            # The centre view is upright; a mirrored copy reverses the axis it flips.
+            assert (m.relay[k, q] < 0) == flipped

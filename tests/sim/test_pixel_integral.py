@@ -1,0 +1,132 @@
+"""The pixel integral's pieces against plain references: the vignetting area, the partition,
+and the kernel against a direct sum over its pieces with closed-form weights."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from sim import pixel_integral as pi
+
+
+def test_disc_fraction_matches_monte_carlo():
+    rng = np.random.default_rng(0)
+    u = rng.uniform(-1, 1, (2, 400_000))
+    u = u[:, (u ** 2).sum(axis=0) <= 1.0]
+    for _ in range(20):
+        b = rng.uniform(-12, 12, 2)
+        a = rng.normal(0, 4, (2, 2)) + np.diag(rng.uniform(2, 8, 2))
+        got = float(pi.disc_fraction(b[:, None], a[:, :, None], 10.0)[0])
+        img = b[:, None] + a @ u
+        inside = np.mean(np.all(np.abs(img) <= 10.0, axis=0))
+        assert abs(got - inside) < 4 * math.sqrt(max(inside * (1 - inside), 1e-6) / u.shape[1])
+
+
+def test_disc_fraction_closed_cases():
+    eye = np.eye(2)[:, :, None]
+    assert pi.disc_fraction(np.zeros((2, 1)), eye, 5.0)[0] == 1.0          # well inside
+    assert pi.disc_fraction(np.array([[20.0], [0.0]]), eye, 5.0)[0] == 0.0  # well outside
+    # The square's edge through the disc's centre: half of it.
+    assert pi.disc_fraction(np.array([[5.0], [0.0]]), eye, 5.0)[0] == pytest.approx(0.5)
+    # A chord at distance 1/2: the segment beyond it is (π/3 − √3/4)/π of the disc.
+    seg = (math.pi / 3 - math.sqrt(3) / 4) / math.pi
+    assert pi.disc_fraction(np.array([[4.5], [0.0]]), eye, 5.0)[0] == pytest.approx(1 - seg)
+
+
+def test_partition_holds_every_cell_and_texel_boundary():
+    relay = np.array([0.3, 0.0127, 0.0, 0.0])
+    xb, mcol, tcol = pi.partition(relay, 200, (10.3, 40.7), 100)
+    assert xb[0] == 10.3 and xb[-1] == 40.7 and np.all(np.diff(xb) > 0)
+    cells = np.arange(11, 41)
+    tex = (np.arange(200) / 200 - 0.3) / 0.0127
+    tex = tex[(tex > 10.3) & (tex < 40.7)]
+    for b in np.concatenate([cells, tex]):
+        assert np.min(np.abs(xb - b)) < 1e-9
+    mid = 0.5 * (xb[1:] + xb[:-1])
+    np.testing.assert_array_equal(mcol, np.floor(mid))
+    t = np.floor((0.3 + 0.0127 * mid) * 200).astype(int)
+    np.testing.assert_array_equal(tcol, np.where((t >= 0) & (t < 200), t, -1))
+    # A flipped view (β < 0) is cut at the same kind of boundaries.
+    xb2, _, t2 = pi.partition(np.array([1.2, -0.0127, 0, 0]), 200, (10.3, 40.7), 100)
+    assert np.all(np.diff(xb2) > 0) and np.all(np.diff(t2[t2 >= 0]) <= 0)
+
+
+def _q(z):
+    return 0.5 * np.maximum(z, 0.0) ** 2
+
+
+def _ramp_mean(x, a0, a1):
+    """Mean over t ∈ [0, 1] of max(x − (a0 + t (a1 − a0)), 0): the antiderivative of a step
+    whose position moves linearly."""
+    d = a1 - a0
+    if abs(d) < 1e-12:
+        return np.maximum(x - a0, 0.0)
+    return (_q(x - a0) - _q(x - a1)) / d
+
+
+def _reference(f, code, view, relay, part, geom, tau, r):
+    """Row ``r`` of one view and band by a direct sum over the partition's pieces, each
+    weighted by the closed-form integral of the pixel's footprint kernel over it (no running
+    integrals, no shared edges)."""
+    h, w = geom.h, geom.w
+    n = geom.cx.shape[0]
+    nseg = max(n - 1, 1)
+    X = np.empty((w + 1, n))
+    Y0, Y1, XC = np.empty(w), np.empty(w), np.empty(w)
+    pi._row_edges(r, geom.prc, geom.pre, geom.pce, geom.pcc, geom.cx, geom.cy, X, Y0, Y1, XC)
+    H = f.shape[0]
+    pmax = pi.max_pieces(relay, H)
+    plen = np.zeros((w + 1, pmax))
+    pmr = np.zeros(pmax, np.int64)
+    ptr = np.zeros(pmax, np.int64)
+    ng = pi._row_pieces(Y0, Y1, relay[2], relay[3], H, code.shape[0], plen, pmr, ptr)
+    xb, mcol, tcol = part
+    # The row's mean of M f on every piece, its y span interpolated between the pixel centres.
+    xm = 0.5 * (xb[1:] + xb[:-1])
+    share = np.stack([np.interp(xm, XC, plen[:w, p]) for p in range(ng)], axis=1)
+    g = np.zeros(xm.size)
+    for i in range(xm.size):
+        if mcol[i] < 0 or tcol[i] < 0:
+            continue
+        for p in range(ng):
+            if pmr[p] >= 0 and ptr[p] >= 0 and code[pmr[p], mcol[i]] == view:
+                g[i] += share[i, p] * f[ptr[p], tcol[i]]
+    out = np.zeros(w)
+    for c in range(w):
+        acc = 0.0
+        for s in range(nseg):
+            t = min(s + 1, n - 1)
+            a0, a1, b0, b1 = X[c, s], X[c, t], X[c + 1, s], X[c + 1, t]
+            width = 0.5 * ((b0 - a0) + (b1 - a1))
+            # ∫ over a piece of the footprint's coverage: the difference of two ramps' means.
+            phi = _ramp_mean(xb, a0, a1) - _ramp_mean(xb, b0, b1)
+            acc += float(np.sum(g * np.diff(phi))) / width
+        out[c] = tau[r, c] * acc / nseg
+    return out
+
+
+@pytest.mark.mitsuba
+def test_kernel_matches_a_direct_sum_over_its_pieces(shared_cache, monkeypatch):
+    pytest.importorskip("mitsuba")
+    from sim.design import get_design
+    from sim.transport import load_or_build
+
+    monkeypatch.setenv("KALEIDOSPEC_CACHE", str(shared_cache))
+    d = get_design("small")
+    tr = load_or_build(d, seed=0)
+    rng = np.random.default_rng(1)
+    for shape, k, l in (((158, 158), 0, 1), ((316, 301), 1, 5), ((97, 211), 3, 10)):
+        f = rng.random(shape).astype(np.float32)
+        out = tr.view_band(f, k, l)
+        geom, part, tau = tr.geometry(k, l), tr.partition(k, shape[1]), tr.throughput(k, l)
+        for r in rng.integers(0, geom.h, 3):
+            ref = _reference(f, tr.code, tr.views[k], tr.maps.relay[k], part, geom, tau, int(r))
+            np.testing.assert_allclose(out[r], ref, rtol=2e-5, atol=2e-6 * float(np.abs(ref).max()))
+
+
+def test_node_weights_are_the_trapezoid_rule():
+    np.testing.assert_allclose(pi.node_weights(1), [1.0])
+    np.testing.assert_allclose(pi.node_weights(3), [0.25, 0.5, 0.25])
+    np.testing.assert_allclose(pi.node_weights(5).sum(), 1.0)
