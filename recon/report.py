@@ -16,6 +16,10 @@ import numpy as np
 
 __all__ = ["srgb_image", "write_png", "band_montage", "spectra_plot", "grid_regions"]
 
+#: A cube shown alone (:func:`band_montage`): at most this many bands, this many a line.
+SHEET_BANDS = 28
+SHEET_COLUMNS = 7
+
 
 def srgb_image(cube, wavelengths, peak: float | None = None) -> tuple[np.ndarray, float]:
     """The display sRGB rendering of a cube and the exposure it used.
@@ -78,7 +82,8 @@ def _save(fig, path, protect=()) -> Path:
 
 def band_montage(path, truth, cubes: dict, wavelengths, max_bands: int = 12, *,
                  protect=()) -> Path:
-    """A grid of band images: the truth in the first row, then one row per reconstruction.
+    """A grid of band images on a common grey scale: the truth in the first row, then one row
+    per reconstruction; a cube alone is laid out as a sheet of its bands instead.
 
     Parameters
     ----------
@@ -90,7 +95,9 @@ def band_montage(path, truth, cubes: dict, wavelengths, max_bands: int = 12, *,
         Reconstructions (e.g. keyed by view count).
     wavelengths : (L,) array
     max_bands : int
-        At most this many bands (evenly spread) are shown.
+        At most this many bands (evenly spread) are shown per row.  A cube alone (no truth,
+        one reconstruction) shows up to :data:`SHEET_BANDS` bands, :data:`SHEET_COLUMNS` a
+        line: every band of a 28-band capture.
     protect : iterable of path-like
         Inputs that ``path`` must not overwrite.
     """
@@ -102,19 +109,30 @@ def band_montage(path, truth, cubes: dict, wavelengths, max_bands: int = 12, *,
     t = rows[0][1]
     wl = np.asarray(wavelengths, dtype=np.float64)
     n_bands = t.shape[2]
-    show = np.unique(np.round(np.linspace(0, n_bands - 1, min(max_bands, n_bands))).astype(int))
+    sheet = len(rows) == 1
+    n_show = min(SHEET_BANDS if sheet else max_bands, n_bands)
+    show = np.unique(np.round(np.linspace(0, n_bands - 1, n_show)).astype(int))
     vmax = float(np.percentile(t, 99.5)) or 1.0
-    fig, axes = plt.subplots(len(rows), show.size, figsize=(1.3 * show.size, 1.4 * len(rows)),
-                             squeeze=False)
-    for r, (label, c) in enumerate(rows):
-        for j, l in enumerate(show):
-            ax = axes[r, j]
-            ax.imshow(c[:, :, l], cmap="gray", vmin=0.0, vmax=vmax, interpolation="nearest")
-            ax.set_xticks([]), ax.set_yticks([])
-            if r == 0:
-                ax.set_title(f"{wl[l]:.0f} nm", fontsize=8)
-            if j == 0:
-                ax.set_ylabel(label, fontsize=8)
+    if sheet:
+        cols = min(SHEET_COLUMNS, show.size)
+        lines = -(-show.size // cols)
+        cells = [(show[i], i // cols, i % cols) for i in range(show.size)]
+        fig, axes = plt.subplots(lines, cols, figsize=(1.6 * cols, 1.75 * lines), squeeze=False)
+        for ax in axes.flat[show.size:]:
+            ax.axis("off")
+    else:
+        cells = [(l, r, j) for r in range(len(rows)) for j, l in enumerate(show)]
+        fig, axes = plt.subplots(len(rows), show.size, figsize=(1.3 * show.size, 1.4 * len(rows)),
+                                 squeeze=False)
+    for l, r, j in cells:
+        label, c = rows[0 if sheet else r]
+        ax = axes[r, j]
+        ax.imshow(c[:, :, l], cmap="gray", vmin=0.0, vmax=vmax, interpolation="nearest")
+        ax.set_xticks([]), ax.set_yticks([])
+        if sheet or r == 0:
+            ax.set_title(f"{wl[l]:.0f} nm", fontsize=8)
+        if j == 0 and not sheet:
+            ax.set_ylabel(label, fontsize=8)
     fig.tight_layout(pad=0.3)
     try:
         return _save(fig, path, protect)
