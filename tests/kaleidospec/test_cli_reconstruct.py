@@ -346,6 +346,8 @@ def test_standard_28_band_wavelengths_for_the_pictures(real_layout, capsys):
     cube, _ = read_cube(tmp / "rec.npz")
     want = np.round(srgb_image(cube, np.array(CASSI_28_WAVELENGTHS))[0] * 255).astype(np.uint8)
     np.testing.assert_array_equal(_png(tmp / "rec_srgb.png"), want)
+    # Without a truth the montage is a sheet of every band: 4 lines of 7 (1.6 × 1.75 in each).
+    assert _png(tmp / "rec_bands.png").shape[:2] == (700, 1120)
 
 
 def test_key_names_the_measurement(real_layout, capsys):
