@@ -173,8 +173,8 @@ def test_help_imports_nothing_heavy():
 
 
 def test_demo_is_the_run_of_the_default_scene(capsys):
-    # The demo renders and calibrates (about a minute): here only its wiring is checked;
-    # tests/kaleidospec/test_cli_run.py runs the same pipeline on a reduced design.
+    # The demo itself runs in tests/test_readme.py (the README's quick start, as written);
+    # here its settings and its refusal of a bad --model.
     from kaleidospec.commands import demo
 
     assert demo.DEFAULT_SCENE == "colorchecker" and demo.DEFAULT_MODEL == "footprint"

@@ -86,25 +86,3 @@ def test_bad_options(tmp_path, capsys):
                             "--no-progress", *SET, *args], capsys)
         assert code == 2, args
     assert not (tmp_path / "x").exists()
-
-
-def test_footprint_model_reconstructs_on_the_scene_grid(tmp_path, capsys):
-    out = tmp_path / "fp"
-    code, text, _ = cli(["run", "--scene", "colorchecker", "--out", str(out), "--views", "1",
-                         "--model", "footprint", "--no-oracle", "--no-progress", *SET], capsys)
-    assert code in (0, None)
-    m = json.loads((out / "metrics.json").read_text())
-    from recon.io.cubes import read_cube
-
-    truth, _ = read_cube(out / "truth.exr")
-    cube, _ = read_cube(out / "cube_1views.exr")
-    assert m["model"] == "footprint" and "footprint model" in text
-    # The comb target's grid is the scene's: the truth is written as rendered, not resampled.
-    assert cube.shape == truth.shape == tuple(m["cube_shape"])
-    from sim.design import Design
-
-    assert m["cube_shape"][:2] == [Design.from_dict(m["design"]).view_size_px] * 2
-    # Its accuracy is tested in tests/kaleidospec/test_pipeline.py; here: well above a flat cube.
-    from recon.metrics import psnr
-
-    assert m["views"]["1"]["psnr"] > psnr(np.full_like(truth, truth.mean()), truth) + 3
