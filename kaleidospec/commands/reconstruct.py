@@ -151,6 +151,8 @@ def reconstruct(
         raise InputError(f"--solver must be one of {', '.join(solver_names())}, got {solver!r}")
     if iters < 1:
         raise InputError(f"--iters must be >= 1, got {iters}")
+    if step < 1:
+        raise InputError(f"--step must be a positive number of pixels per band, got {step}")
     if out.suffix.lower() not in OUT_SUFFIXES:
         raise InputError(f"{out}: output must end in {', '.join(OUT_SUFFIXES)}")
     inputs = (measurement, mask, truth)
