@@ -32,15 +32,14 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import shutil
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
 from recon.errors import InputError
+# The sRGB pictures are recon.report's, shared with kaleidospec reconstruct.
+from recon.report import grid_regions, srgb_image as _srgb, write_png as _write_png
 
 __all__ = ["VIEW_ORDER", "calibrate", "render_scene", "reconstruct_views", "oracle_operator",
            "reconstruct_oracle", "band_mean_dispersion", "solve_views", "truth_on_grid",
@@ -646,7 +645,8 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
     """Render ``scene``, calibrate (cached), reconstruct for every view count, write a report.
 
     Everything is written into a fresh temporary folder beside ``out_dir`` that replaces
-    ``out_dir`` only at the end, so a failure leaves ``out_dir`` as it was.
+    ``out_dir`` only at the end, so a failure leaves ``out_dir`` as it was; missing folders
+    above it are created (:func:`recon.io.atomic.output_parents`).
 
     Parameters
     ----------
@@ -680,7 +680,7 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
     dict
         The content of ``metrics.json``.
     """
-    from recon.io.atomic import write_text
+    from recon.io.atomic import atomic_dir, check_output, output_parents, write_text
     from recon.io.cubes import write_cube
     from recon.io.raw import write_raw
 
@@ -694,9 +694,7 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
     if scene_path.exists() and out_dir.resolve() in (scene_path.resolve(),
                                                      *scene_path.resolve().parents):
         raise InputError(f"{out_dir}: would overwrite the input {scene}")
-    parent = out_dir.resolve().parent
-    if not parent.is_dir():
-        raise InputError(f"{parent}: folder does not exist")
+    check_output(out_dir, folder=True, parents=True)
     say = log or (lambda line: None)
 
     # --- inputs first: the scene (a bad cube fails before any long step) ----------------------
@@ -726,8 +724,7 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
     if missing:
         raise InputError(f"view(s) {missing} missing from the calibration {list(cal.view_ids)}")
 
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.tmp-", dir=parent))
-    try:
+    with output_parents(out_dir), atomic_dir(out_dir) as tmp:
         write_raw(tmp / "raw.exr", frame, meta)
         tg = truth_on_grid(truth, design, cal, model)
         write_cube(tmp / "truth.exr", tg, wl)
@@ -777,10 +774,6 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
         result["total_seconds"] = time.perf_counter() - t_start
         write_text(tmp / "metrics.json",
                    json.dumps(_finite(result), indent=2, allow_nan=False) + "\n")
-        _replace_dir(tmp, out_dir)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     for line in summary_lines(result):
         say(line)
     return result
@@ -868,27 +861,6 @@ def summary_lines(result) -> list[str]:
     return lines
 
 
-def _srgb(cube, wl, peak=None):
-    """sRGB (CIE 1931 2°, flat-white balance, γ 2.2) and the exposure used (shared with the
-    truth so that the pictures compare)."""
-    from recon.metrics import cube_to_xyz, cube_to_srgb
-
-    if peak is None:
-        peak = float(np.percentile(cube_to_xyz(cube, wl)[..., 1], 99.0))
-        if not (math.isfinite(peak) and peak > 0):
-            peak = 1.0
-    return cube_to_srgb(cube, wl, peak=peak), peak
-
-
-def _write_png(path, rgb) -> None:
-    import imageio.v3 as iio
-
-    from recon.io.atomic import atomic_path
-
-    with atomic_path(Path(path)) as tmp:
-        iio.imwrite(tmp, np.round(np.clip(rgb, 0, 1) * 255).astype(np.uint8), extension=".png")
-
-
 def colorchecker_patches(design, cal, model: str | None = None) -> dict:
     """The ColorChecker patches that lie wholly on the ``model``'s reconstruction grid, their
     middle half (edges mix neighbouring patches): ``{patch index: (y0, x0, h, w)}``."""
@@ -929,24 +901,4 @@ def _probe_boxes(scene, design, cal, model=None):
         out = [(f"patch {k + 1}", patches[k]) for k in (1, 2, 5, 13, 14, 15) if k in patches]
         if out:
             return out
-    s = max(2, min(h, w) // 12)
-    return [(f"({y}, {x})", (y, x, s, s)) for y, x in
-            ((h // 4, w // 4), (h // 4, 3 * w // 4 - s), (3 * h // 4 - s, w // 4),
-             (3 * h // 4 - s, 3 * w // 4 - s))]
-
-
-def _replace_dir(tmp: Path, out_dir: Path) -> None:
-    """Put the finished folder ``tmp`` at ``out_dir``: a rename, the old folder (if any) moved
-    aside first and removed only after the new one is in place."""
-    if out_dir.exists():
-        old = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.old-", dir=out_dir.resolve().parent))
-        os.rmdir(old)
-        os.replace(out_dir, old)
-        try:
-            os.replace(tmp, out_dir)
-        except OSError:
-            os.replace(old, out_dir)
-            raise
-        shutil.rmtree(old, ignore_errors=True)
-    else:
-        os.replace(tmp, out_dir)
+    return grid_regions((h, w))

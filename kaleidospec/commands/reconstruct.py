@@ -1,12 +1,26 @@
-"""``kaleidospec reconstruct``: a cube from a measurement file and a mask file.
+"""``kaleidospec reconstruct``: a cube, and the pictures to look at, from a measurement file and
+a mask file.
 
 Standard single-view convention (MST / TSA-Net): mask H×W, band l shifted right by step·l,
-measurement H×(W + step·(L−1)).  Every input is checked before any work starts (the output
-location too: it must not be an input, and its folder must exist and accept files), and the
-output is written atomically, so a bad input gives one line on stderr, exit status 2 and no
-file; the inputs are only read.  A boolean mask file is read as 0/1.  Warnings (e.g. a
-measurement negative beyond read noise, see :mod:`recon.app`) are one line each on stderr,
-``kaleidospec: warning: ...``, and do not change the exit status.
+measurement H×(W + step·(L−1)).  The mask may also be the 3-D shifted mask cube published with
+real captures (TSA-Net's ``mask_3d_shift``, H×(W + step·(L−1))×L: band l's mask where band l
+lands on the sensor), or an unshifted H×W×L cube of per-band masks.  Without ``--key`` the
+measurement is the first of :data:`recon.io.arrays.MEASUREMENT_KEYS` in the file (``meas_real``,
+``meas``, …) or its only 2-D array, the mask likewise (:data:`recon.io.arrays.MASK_KEYS`); the
+first line printed says what was read.
+
+Beside the cube (``rec.npz``) go ``rec_srgb.png`` (sRGB preview), ``rec_bands.png`` (band
+montage) and, with ``--truth``, ``rec_spectra.png`` (spectra of four points against the truth);
+``--no-pictures`` leaves them out.  Pictures need wavelengths: the cube's (``--wavelengths`` or
+the truth's), else :func:`recon.io.cubes.standard_wavelengths` (TSA-Net's 28 bands), which is
+then said, and not written into the cube.
+
+Every input is checked before any work starts (the outputs too: none may be an input, and
+missing folders above them must be creatable); the outputs are written atomically, together:
+a bad input or a failed write gives one line on stderr, exit status 2, and no file (folders
+made for the outputs are removed again); the inputs are only read.  A boolean mask file is read
+as 0/1.  Warnings (e.g. a measurement negative beyond read noise, see :mod:`recon.app`) are one
+line each on stderr, ``kaleidospec: warning: ...``, and do not change the exit status.
 """
 
 from __future__ import annotations
@@ -17,6 +31,8 @@ from typing import Optional
 import typer
 
 OUT_SUFFIXES = (".npz", ".npy", ".exr", ".mat")
+#: Picture files written beside the cube ``<stem><suffix>``: name suffix per picture.
+PICTURES = {"srgb": "_srgb.png", "bands": "_bands.png", "spectra": "_spectra.png"}
 
 
 def parse_wavelengths(spec: str, n_bands: int, truth_wl=None):
@@ -42,32 +58,90 @@ def parse_wavelengths(spec: str, n_bands: int, truth_wl=None):
     return np.linspace(start, stop, count)
 
 
+def picture_paths(out: Path, truth: bool) -> dict:
+    """The pictures written beside the cube ``out``: ``{"srgb": …, "bands": …[, "spectra": …]}``
+    (the spectra need a truth to compare with)."""
+    names = [k for k in PICTURES if truth or k != "spectra"]
+    return {k: out.with_name(out.stem + PICTURES[k]) for k in names}
+
+
+def shifted_mask_operator(mask3d, step: int, measurement_shape):
+    """The forward operator of a 3-D mask cube in the standard convention.
+
+    Parameters
+    ----------
+    mask3d : (H, X, L) array
+        Per-band masks, either shifted (``X`` = the measurement width: band ``l``'s mask where
+        band ``l`` lands, TSA-Net's ``mask_3d_shift``) or not (``X`` = the scene width
+        ``Wm − step·(L−1)``: each band's mask on the scene grid).
+    step : int
+        Dispersion step (px per band).
+    measurement_shape : (H, Wm)
+
+    Returns
+    -------
+    recon.operators.CalibratedCassi
+        ``(L, H, W) -> (1, H, Wm)``: the measured per-band masks times the band shifted by
+        ``step·l``; for a mask cube built from a 2-D mask it is :func:`standard_cassi`'s
+        operator.
+
+    Raises
+    ------
+    InputError
+        When the cube fits neither layout.
+    """
+    import numpy as np
+
+    from recon.errors import InputError
+    from recon.operators import CalibratedCassi
+
+    m = np.asarray(mask3d, dtype=np.float32)
+    hg, wm = measurement_shape
+    n_bands = m.shape[2]
+    w = wm - step * (n_bands - 1)
+    if m.shape[0] != hg or w < 1 or m.shape[1] not in (wm, w):
+        raise InputError(
+            f"a 3-D mask must be H×(W+step·(L−1))×L (shifted, like mask_3d_shift) or H×W×L for the "
+            f"measurement's {hg}×{wm} and step {step}: with L = {n_bands}, {hg}×{wm}×{n_bands} or "
+            f"{hg}×{w}×{n_bands}, got {'×'.join(map(str, m.shape))}")
+    bands = np.zeros((n_bands, hg, wm), np.float32)
+    for l in range(n_bands):
+        a = step * l
+        # A shifted cube already holds band l's mask at columns a … a+W; an unshifted one is
+        # put there.  Columns outside that window are never lit by band l and are ignored.
+        bands[l, :, a:a + w] = m[:, a:a + w, l] if m.shape[1] == wm else m[:, :, l]
+    return CalibratedCassi(bands, step * np.arange(n_bands, dtype=np.float64),
+                           cube_shape=(n_bands, hg, w))
+
+
 def reconstruct(
-    measurement: Path = typer.Option(..., "--measurement", "-m", help="Measurement H×Wm (.npy, .mat or .exr)."),
-    mask: Path = typer.Option(..., "--mask", help="Coded-aperture mask H×W (.npy, .mat or .exr)."),
+    measurement: Path = typer.Option(..., "--measurement", "-m", help="Measurement H×Wm (.npy, .npz, .mat or .exr)."),
+    mask: Path = typer.Option(..., "--mask", help="Coded-aperture mask: H×W, or a 3-D mask cube H×Wm×L (shifted, like TSA-Net's mask_3d_shift) or H×W×L (.npy, .npz, .mat or .exr)."),
     step: int = typer.Option(..., "--step", help="Dispersion step in pixels per band."),
-    out: Path = typer.Option(..., "--out", "-o", help="Output cube (.npz, .npy, .exr or .mat)."),
-    bands: Optional[int] = typer.Option(None, "--bands", help="Number of bands (default: what the widths imply, (Wm − W)/step + 1)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Output cube (.npz, .npy, .exr or .mat); missing folders are created."),
+    bands: Optional[int] = typer.Option(None, "--bands", help="Number of bands (default: what the widths imply, (Wm − W)/step + 1, or a 3-D mask's)."),
     solver: str = typer.Option("gap-tv", "--solver", help="Solver: gap-tv (fastest on clean data), fista-tv (robust to noise) or twist (the paper's)."),
     iters: int = typer.Option(50, "--iters", help="Iterations."),
     tau: Optional[float] = typer.Option(None, "--tau", help="TV weight (default: the solver's own)."),
-    truth: Optional[Path] = typer.Option(None, "--truth", help="Reference cube (H, W, L) for PSNR/SSIM/SAM."),
+    truth: Optional[Path] = typer.Option(None, "--truth", help="Reference cube (H, W, L) for PSNR/SSIM/SAM and the spectra picture."),
     wavelengths: str = typer.Option("infer", "--wavelengths", help="START:STOP:COUNT in nm, or 'infer' (from --truth)."),
-    measurement_key: Optional[str] = typer.Option(None, "--measurement-key", help="Variable/channel name in the measurement file."),
-    mask_key: Optional[str] = typer.Option(None, "--mask-key", help="Variable/channel name in the mask file."),
+    measurement_key: Optional[str] = typer.Option(None, "--key", "--measurement-key", help="Variable/channel name of the measurement (default: meas_real, meas, measurement, … or the file's only 2-D array)."),
+    mask_key: Optional[str] = typer.Option(None, "--mask-key", help="Variable/channel name of the mask (default: mask_3d_shift, mask, … or the file's only mask-shaped array)."),
     truth_key: Optional[str] = typer.Option(None, "--truth-key", help="Variable name in the truth file."),
+    pictures: bool = typer.Option(True, "--pictures/--no-pictures", help="Write the sRGB preview, the band montage and (with --truth) the spectra beside the cube."),
     progress: bool = typer.Option(False, "--progress/--no-progress", help="Show a progress bar."),
 ) -> None:
-    """Reconstruct a hyperspectral cube from a single-view CASSI measurement."""
+    """Reconstruct a hyperspectral cube from a single-view CASSI measurement, with pictures."""
+    import contextlib
     import sys
     import warnings
 
-    from recon.app import (NegativeMeasurementWarning, reconstruct_standard, solver_names,
-                           standard_n_bands)
+    from recon.app import (NegativeMeasurementWarning, reconstruct as solve, reconstruct_standard,
+                           solver_names, standard_n_bands)
     from recon.errors import InputError
-    from recon.io.arrays import read_array2d
-    from recon.io.atomic import check_output
-    from recon.io.cubes import read_cube, write_cube
+    from recon.io.arrays import MASK_KEYS, MEASUREMENT_KEYS, read_named_array
+    from recon.io.atomic import atomic_path, check_output, output_parents
+    from recon.io.cubes import read_cube, standard_wavelengths, write_cube
 
     def one_line_warning(message, category, filename, lineno, file=None, line=None):
         print(f"kaleidospec: warning: {message}", file=sys.stderr)
@@ -77,24 +151,43 @@ def reconstruct(
         raise InputError(f"--solver must be one of {', '.join(solver_names())}, got {solver!r}")
     if iters < 1:
         raise InputError(f"--iters must be >= 1, got {iters}")
+    if step < 1:
+        raise InputError(f"--step must be a positive number of pixels per band, got {step}")
     if out.suffix.lower() not in OUT_SUFFIXES:
         raise InputError(f"{out}: output must end in {', '.join(OUT_SUFFIXES)}")
-    check_output(out, (measurement, mask, truth))
+    inputs = (measurement, mask, truth)
+    outputs = {"cube": out, **(picture_paths(out, truth is not None) if pictures else {})}
+    for path in outputs.values():
+        check_output(path, inputs, parents=True)
 
-    g = read_array2d(measurement, key=measurement_key, what="measurement")
-    m = read_array2d(mask, key=mask_key, what="mask", allow_bool=True)
-    if g.shape[0] != m.shape[0]:
+    g, g_name = read_named_array(measurement, key=measurement_key, ndim=2, what="measurement",
+                                 preferred=MEASUREMENT_KEYS)
+    m, m_name = read_named_array(mask, key=mask_key, ndim=(2, 3), what="mask", allow_bool=True,
+                                 preferred=MASK_KEYS)
+    if m.shape[0] != g.shape[0]:
         raise InputError(f"{measurement}: height {g.shape[0]} does not match the mask's {m.shape[0]} ({mask})")
-    n_bands = standard_n_bands(m.shape[1], g.shape[1], step)
+    if m.ndim == 2:
+        n_bands = standard_n_bands(m.shape[1], g.shape[1], step)
+        cube_hw = m.shape
+    else:
+        op = shifted_mask_operator(m, step, g.shape)
+        n_bands, cube_hw = op.ishape[0], op.ishape[1:]
     if bands is not None and bands != n_bands:
         raise InputError(
-            f"--bands {bands} does not fit: mask width {m.shape[1]}, measurement width {g.shape[1]} "
-            f"and step {step} imply {n_bands}"
-        )
+            f"--bands {bands} does not fit: the mask {'×'.join(map(str, m.shape))}, measurement "
+            f"width {g.shape[1]} and step {step} imply {n_bands}")
+
+    def named(path, name):
+        return f"{path.name}[{name!r}]" if name is not None else path.name
+    layout = ("2-D" if m.ndim == 2 else
+              "3-D, shifted" if m.shape[1] == g.shape[1] else "3-D, per band")
+    print(f"measurement {named(measurement, g_name)} {g.shape[0]}×{g.shape[1]}, mask "
+          f"{named(mask, m_name)} {'×'.join(map(str, m.shape))} ({layout}), step {step}: "
+          f"{n_bands} bands")
     truth_cube = truth_wl = None
     if truth is not None:
         truth_cube, truth_wl = read_cube(truth, key=truth_key)
-        want = (m.shape[0], m.shape[1], n_bands)
+        want = (*cube_hw, n_bands)
         if truth_cube.shape != want:
             raise InputError(f"{truth}: truth shape {truth_cube.shape} does not match the reconstruction {want}")
     wl = parse_wavelengths(wavelengths, n_bands, truth_wl)
@@ -105,12 +198,24 @@ def reconstruct(
     with warnings.catch_warnings():
         warnings.simplefilter("always", NegativeMeasurementWarning)
         warnings.showwarning = one_line_warning
-        cube, info = reconstruct_standard(
-            g, m, step, n_bands, solver=solver, iters=iters, tau=tau, truth=truth_cube,
-            wavelengths=wl, progress=progress,
-        )
+        settings = dict(solver=solver, iters=iters, tau=tau, truth=truth_cube, wavelengths=wl,
+                        progress=progress)
+        if m.ndim == 2:
+            cube, info = reconstruct_standard(g, m, step, n_bands, **settings)
+        else:
+            cube, info = solve(g, op, **settings)
+
+    # -- write the cube and its pictures, all or none --------------------------------------------
+    pic_wl = wl if wl is not None else standard_wavelengths(n_bands)
     try:
-        write_cube(out, cube, wl, protect=(measurement, mask, truth))
+        with output_parents(out), contextlib.ExitStack() as stack:
+            # Each output goes to a temporary file first; they are renamed together at the end
+            # (ExitStack), so a failed picture leaves no cube and an older cube untouched.
+            tmp = {k: stack.enter_context(atomic_path(path, protect=inputs))
+                   for k, path in outputs.items()}
+            write_cube(tmp["cube"], cube, wl)
+            if pictures:
+                _write_pictures(tmp, cube, truth_cube, pic_wl)
     except OSError as err:  # disk full, or the folder changed during the solve
         raise InputError(f"{out}: cannot write ({err.strerror or err})") from None
 
@@ -123,4 +228,20 @@ def reconstruct(
               f"SAM {mt['sam_deg']:.2f} deg")
         if "delta_e2000" in mt:
             print(f"CIEDE2000 {mt['delta_e2000']:.2f}")
-    print(f"wrote {out}")
+    if pictures and wl is None:
+        print(f"pictures: the inputs carry no wavelengths; assumed {pic_wl[0]:.1f}–{pic_wl[-1]:.1f} nm"
+              + (" (the standard 28 CASSI bands)" if n_bands == 28 else " (evenly spaced)")
+              + "; --wavelengths START:STOP:COUNT sets them")
+    print("wrote " + ", ".join(str(p) for p in outputs.values()))
+
+
+def _write_pictures(paths: dict, cube, truth, wavelengths) -> None:
+    """The sRGB preview, the band montage and, with a truth, the spectra of four points
+    (:mod:`recon.report`, the pictures ``kaleidospec run`` writes too)."""
+    from recon.report import band_montage, grid_regions, spectra_plot, srgb_image, write_png
+
+    rows = {"reconstruction": cube}
+    write_png(paths["srgb"], srgb_image(cube, wavelengths)[0])
+    band_montage(paths["bands"], truth, rows, wavelengths)
+    if "spectra" in paths:
+        spectra_plot(paths["spectra"], truth, rows, wavelengths, grid_regions(cube.shape))

@@ -1,4 +1,9 @@
-"""``kaleidospec render``: a raw 3×3 frame of a scene through the simulated instrument."""
+"""``kaleidospec render``: a raw 3×3 frame of a scene through the simulated instrument.
+
+The output is checked before the render (it must not be the scene file, and missing folders
+above it must be creatable); the raw frame, its sidecar and the ground truth are each written
+atomically, and folders created for them are removed again if a write fails.
+"""
 
 from __future__ import annotations
 
@@ -30,6 +35,7 @@ def render(
     import time
 
     from recon.errors import InputError
+    from recon.io.atomic import check_output, output_parents
     from scenes.registry import get_scene
     from sim.design import get_design, parse_overrides
     from sim.frame import scene_grid, simulate_frame, write_frame
@@ -40,6 +46,7 @@ def render(
         raise InputError("--wavelength must be a finite number of nm")
     if sampling not in ("box", "centre"):
         raise InputError(f"--band-sampling must be box or centre, got {sampling!r}")
+    check_output(out, [scene], parents=True)
     d = get_design(design, parse_overrides(set_))
     cube, wl = get_scene(scene, shape=scene_grid(d, scene), wavelengths=d.wavelengths)
     t0 = time.perf_counter()
@@ -48,6 +55,7 @@ def render(
                                  progress=True)
     meta["scene"] = scene
     meta["render_seconds"] = time.perf_counter() - t0
-    paths = write_frame(out, frame, meta, d, cube, wl, protect=[scene])
+    with output_parents(out):
+        paths = write_frame(out, frame, meta, d, cube, wl, protect=[scene])
     typer.echo(f"wrote {paths['raw']} ({frame.shape[1]}×{frame.shape[0]}, design {d.hash}, "
                f"{meta['render_seconds']:.1f} s)")

@@ -15,8 +15,11 @@ DEFAULT_RANGES = {"mirror-length": (150.0, 420.0, 30.0), "prism-apex": (25.0, 70
 def _run(kind: str, start, stop, step, design, set_, scene, views, solver, iters, tau, seed,
          spp, recon, out, workers, scheduler) -> None:
     """Shared body of both commands (heavy imports here, not at module level)."""
+    import os
+
     from kaleidospec.sweep import SweepSettings, run_sweep, sweep_values
     from recon.errors import InputError
+    from recon.io.atomic import check_output, output_parents
     from sim.design import parse_overrides
 
     d0, d1, ds = DEFAULT_RANGES[kind]
@@ -34,8 +37,11 @@ def _run(kind: str, start, stop, step, design, set_, scene, views, solver, iters
     from kaleidospec.sweep import _base_design
 
     _base_design(settings)
-    run_sweep(settings, values, out or f"sweeps/{kind}-{design}", workers=workers,
-              scheduler=scheduler, log=typer.echo)
+    out = out or f"sweeps/{kind}-{design}"
+    # A built-in scene's name is no file to protect (an --out of that name is fine).
+    check_output(out, [scene if os.path.exists(scene) else None], folder=True, parents=True)
+    with output_parents(out):
+        run_sweep(settings, values, out, workers=workers, scheduler=scheduler, log=typer.echo)
 
 
 def _options(kind: str):

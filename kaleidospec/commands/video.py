@@ -75,8 +75,11 @@ def video(
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress bars."),
 ) -> None:
     """Render and reconstruct a dynamic scene frame by frame (4D hyperspectral video)."""
+    import os
+
     from kaleidospec.video import run_video
     from recon.errors import InputError
+    from recon.io.atomic import check_output, output_parents
     from sim.design import parse_overrides
 
     if frames is not None and frames < 1:
@@ -88,12 +91,15 @@ def video(
         params["speed_deg_s"] = speed
     if workers is not None and workers < 1:
         raise InputError(f"--workers must be >= 1, got {workers}")
-    res = run_video(scene, out, design=design, overrides=parse_overrides(set_), frames=frames,
-                    fps=fps, views=views, solver=solver, iters=iters, cold_iters=cold_iters,
-                    tau=tau, temporal=temporal, seed=seed, noise=noise, subframes=subframes,
-                    scene_params=params, segment_frames=segment, workers=workers,
-                    scheduler=scheduler, video_format=fmt, operator=operator,
-                    progress=progress)
+    # A built-in scene's name is no file to protect (an --out of that name is fine).
+    check_output(out, [scene if os.path.exists(scene) else None], folder=True, parents=True)
+    with output_parents(out):
+        res = run_video(scene, out, design=design, overrides=parse_overrides(set_),
+                        frames=frames, fps=fps, views=views, solver=solver, iters=iters,
+                        cold_iters=cold_iters, tau=tau, temporal=temporal, seed=seed,
+                        noise=noise, subframes=subframes, scene_params=params,
+                        segment_frames=segment, workers=workers, scheduler=scheduler,
+                        video_format=fmt, operator=operator, progress=progress)
     r, c, s = res["render"], res["reconstruct"], res["summary"]
     rate = (f", {r['rendered'] / r['seconds']:.1f} frames/s from the transport cache"
             if r["rendered"] and r["seconds"] > 0 else "")

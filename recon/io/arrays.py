@@ -25,7 +25,10 @@ from recon.errors import InputError
 from recon.io.atomic import atomic_path
 
 __all__ = [
+    "MEASUREMENT_KEYS",
+    "MASK_KEYS",
     "read_array",
+    "read_named_array",
     "read_array2d",
     "write_array2d",
     "check_array",
@@ -36,6 +39,13 @@ __all__ = [
 ]
 
 PathLike = str | os.PathLike
+
+#: Names under which the CASSI world's files keep a measurement, tried in this order when no key
+#: is given: ``meas_real`` (TSA-Net's real captures, also in MST), then the usual others.
+MEASUREMENT_KEYS = ("meas_real", "meas", "measurement", "measurements", "meas_sim", "y", "g")
+#: Names under which they keep a mask: the shifted mask cube published with real captures
+#: (``mask_3d_shift``, H×(W+step·(L−1))×L) before the plain H×W mask.
+MASK_KEYS = ("mask_3d_shift", "mask3d_shift", "mask", "Phi", "phi")
 
 _MAT_HEADER = b"MATLAB 7.3 MAT-file, Platform: GLNXA64, Created by: kaleidospec HDF5 schema 1.00 ."
 
@@ -250,14 +260,20 @@ def _pick(arrays: dict[str, np.ndarray], p: Path, key: str | None, ndim: int | t
           preferred: tuple[str, ...] = ()) -> np.ndarray:
     """The array under ``key``; else the first of ``preferred`` present; else the only array
     with the wanted number of dimensions."""
+    return _pick_named(arrays, p, key, ndim, what, preferred)[1]
+
+
+def _pick_named(arrays: dict[str, np.ndarray], p: Path, key: str | None, ndim: int | tuple,
+                what: str, preferred: tuple[str, ...] = ()) -> tuple[str, np.ndarray]:
+    """:func:`_pick` and the name it picked."""
     if key is not None:
         if key not in arrays:
             have = ", ".join(sorted(arrays)) or "none"
             raise InputError(f"{p}: no variable {key!r} (variables: {have})")
-        return arrays[key]
+        return key, arrays[key]
     for k in preferred:
         if k in arrays:
-            return arrays[k]
+            return k, arrays[k]
     allowed = (ndim,) if isinstance(ndim, int) else tuple(ndim)
     # MATLAB scalars and vectors are 2-D (1×n): never candidates for an image or a cube.
     cands = {k: v for k, v in arrays.items() if v.ndim in allowed and min(v.shape) > 1}
@@ -265,7 +281,7 @@ def _pick(arrays: dict[str, np.ndarray], p: Path, key: str | None, ndim: int | t
         have = ", ".join(f"{k}{tuple(v.shape)}" for k, v in sorted(arrays.items())) or "none"
         why = "no" if not cands else "more than one"
         raise InputError(f"{p}: {why} {what} candidate; name one with a key (variables: {have})")
-    return next(iter(cands.values()))
+    return next(iter(cands.items()))
 
 
 def _load_npz(p: Path) -> dict[str, np.ndarray]:
@@ -304,27 +320,50 @@ def read_array(path: PathLike, *, key: str | None = None, ndim: int | tuple = 2,
     allow_bool : bool
         Accept a boolean array as 0/1 (masks); see :func:`check_array`.
     """
+    return read_named_array(path, key=key, ndim=ndim, what=what, allow_bool=allow_bool)[0]
+
+
+def read_named_array(path: PathLike, *, key: str | None = None, ndim: int | tuple = 2,
+                     what: str = "array", allow_bool: bool = False,
+                     preferred: tuple[str, ...] = ()) -> tuple[np.ndarray, str | None]:
+    """:func:`read_array`, and the name of the variable or channel it read.
+
+    Parameters
+    ----------
+    preferred : tuple of str
+        Without ``key``, the first of these names present in a ``.npz`` or ``.mat`` file is
+        read (e.g. :data:`MEASUREMENT_KEYS`); with none present, the single array with ``ndim``
+        dimensions.  Other parameters as in :func:`read_array`.
+
+    Returns
+    -------
+    array : float32 array
+    name : str or None
+        The variable or channel read; None for a ``.npy`` file (it holds one array).
+    """
     p = check_file(path)
     ext = p.suffix.lower()
+    name = None
     if ext == ".npy":
         arr = _load_npy(p)
     elif ext == ".npz":
-        arr = _pick(_load_npz(p), p, key, ndim, what)
+        name, arr = _pick_named(_load_npz(p), p, key, ndim, what, preferred)
     elif ext == ".mat":
-        arr = _pick(load_mat(p), p, key, ndim, what)
+        name, arr = _pick_named(load_mat(p), p, key, ndim, what, preferred)
     elif ext == ".exr":
         chans, _ = read_exr(p)
         if key is not None:
             if key not in chans:
                 raise InputError(f"{p}: no channel {key!r} (channels: {', '.join(sorted(chans))})")
-            arr = chans[key]
+            name = key
         elif len(chans) == 1:
-            arr = next(iter(chans.values()))
+            name = next(iter(chans))
         else:
             raise InputError(f"{p}: {len(chans)} channels; name one with a key ({', '.join(sorted(chans))})")
+        arr = chans[name]
     else:
         raise InputError(f"{p}: unsupported file type {ext or '(none)'}; use .npy, .npz, .mat or .exr")
-    return check_array(arr, p, ndim=ndim, what=what, allow_bool=allow_bool)
+    return check_array(arr, p, ndim=ndim, what=what, allow_bool=allow_bool), name
 
 
 def read_array2d(path: PathLike, *, key: str | None = None, what: str = "array",

@@ -43,7 +43,8 @@ from recon.io.arrays import (
 )
 from recon.io.atomic import atomic_dir, atomic_path
 
-__all__ = ["read_cube", "write_cube", "exr_channel_name", "parse_exr_channel", "cave_wavelengths"]
+__all__ = ["read_cube", "write_cube", "exr_channel_name", "parse_exr_channel", "cave_wavelengths",
+           "CASSI_28_WAVELENGTHS", "standard_wavelengths"]
 
 PathLike = str | os.PathLike
 
@@ -65,6 +66,22 @@ def parse_exr_channel(name: str) -> float | None:
 def cave_wavelengths(n_bands: int) -> np.ndarray:
     """400, 410, … nm: the CAVE band grid."""
     return 400.0 + 10.0 * np.arange(n_bands, dtype=np.float64)
+
+
+#: The 28 band centres (nm) of the CASSI benchmark world (TSA-Net's real captures and the KAIST
+#: and CAVE scenes as MST uses them): 450–650 nm, denser in the blue, where the prism disperses
+#: more.  Its ``.mat`` files carry no wavelengths; these are what they mean.
+CASSI_28_WAVELENGTHS = (453.3, 457.6, 462.1, 466.8, 471.6, 476.5, 481.6, 486.9, 492.4, 498.0,
+                        503.9, 509.9, 516.2, 522.7, 529.5, 536.5, 543.8, 551.4, 558.6, 567.5,
+                        575.3, 584.3, 594.4, 604.2, 614.4, 625.1, 636.3, 648.1)
+
+
+def standard_wavelengths(n_bands: int) -> np.ndarray:
+    """What a cube without wavelengths most likely means: :data:`CASSI_28_WAVELENGTHS` for 28
+    bands, else ``n_bands`` evenly spaced over the same 450–650 nm."""
+    if int(n_bands) == len(CASSI_28_WAVELENGTHS):
+        return np.array(CASSI_28_WAVELENGTHS, dtype=np.float64)
+    return np.linspace(450.0, 650.0, int(n_bands))
 
 
 def _check_wavelengths(wl, n_bands: int, where) -> np.ndarray | None:

@@ -243,9 +243,25 @@ def test_output_under_a_regular_file(setup, capsys):
     _fails_cleanly(tmp, _args(p, tmp / "file.txt" / "rec.npz"), capsys, "not a folder")
 
 
-def test_output_folder_missing(setup, capsys):
+def test_output_below_a_regular_file_deeper(setup, capsys):
     tmp, p, _, _ = setup
-    _fails_cleanly(tmp, _args(p, tmp / "no" / "rec.npz"), capsys, "does not exist")
+    (tmp / "file.txt").write_text("x")
+    _fails_cleanly(tmp, _args(p, tmp / "file.txt" / "a" / "b" / "rec.npz"), capsys, "not a folder")
+
+
+def test_missing_output_folders_are_created(setup, capsys):
+    # Like `mkdir -p`: a fresh clone has no out/ (it is git-ignored), and the README's first
+    # command writes into it.
+    tmp, p, _, _ = setup
+    code, _, err = _run(_args(p, tmp / "no" / "such" / "rec.npz"), capsys)
+    assert code in (0, None), err
+    assert (tmp / "no" / "such" / "rec.npz").is_file()
+
+
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux /proc")
+def test_output_folder_cannot_be_created(setup, capsys):
+    tmp, p, _, _ = setup
+    _fails_cleanly(tmp, _args(p, Path("/proc/h6_cli_dir/rec.npz")), capsys, "cannot write")
 
 
 @pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux /proc")

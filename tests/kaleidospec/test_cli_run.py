@@ -86,4 +86,3 @@ def test_bad_options(tmp_path, capsys):
                             "--no-progress", *SET, *args], capsys)
         assert code == 2, args
     assert not (tmp_path / "x").exists()
-

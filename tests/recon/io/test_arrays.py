@@ -133,3 +133,28 @@ def test_write_refuses_input_and_bad_shape(tmp_path, arr):
     with pytest.raises(InputError, match="2-D"):
         write_array2d(tmp_path / "b.npy", arr[None])
     assert not (tmp_path / "b.npy").exists()
+
+
+def test_named_array_prefers_the_cassi_keys(tmp_path, arr):
+    from recon.io.arrays import MASK_KEYS, MEASUREMENT_KEYS, read_named_array
+
+    # TSA-Net's real captures: meas_real beside other 2-D arrays; no key needed.
+    scipy.io.savemat(tmp_path / "scene1.mat", {"aux": arr * 3, "meas_real": arr})
+    got, name = read_named_array(tmp_path / "scene1.mat", preferred=MEASUREMENT_KEYS)
+    assert name == "meas_real"
+    np.testing.assert_allclose(got, arr)
+    got, name = read_named_array(tmp_path / "scene1.mat", key="aux", preferred=MEASUREMENT_KEYS)
+    assert name == "aux"
+    np.testing.assert_allclose(got, arr * 3)
+    # A mask file with the shifted cube and the plain mask: the cube is the calibrated one.
+    cube = np.stack([arr] * 3, axis=2)
+    np.savez(tmp_path / "m.npz", mask=arr, mask_3d_shift=cube)
+    got, name = read_named_array(tmp_path / "m.npz", ndim=(2, 3), preferred=MASK_KEYS)
+    assert name == "mask_3d_shift" and got.shape == cube.shape
+    # The only 2-D array when no name matches; None for a .npy (one array, no name).
+    scipy.io.savemat(tmp_path / "one.mat", {"frame": arr, "cube": cube})
+    assert read_named_array(tmp_path / "one.mat", preferred=MEASUREMENT_KEYS)[1] == "frame"
+    np.save(tmp_path / "a.npy", arr)
+    assert read_named_array(tmp_path / "a.npy")[1] is None
+    write_exr(tmp_path / "y.exr", {"Y": arr})
+    assert read_named_array(tmp_path / "y.exr")[1] == "Y"

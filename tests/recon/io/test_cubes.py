@@ -238,3 +238,15 @@ def test_atomic_dir_failure_keeps_old_folder(tmp_path):
             raise RuntimeError("boom")
     assert [p.name for p in (tmp_path / "d").iterdir()] == ["keep.txt"]
     assert _leftovers(tmp_path) == []
+
+
+def test_standard_wavelengths():
+    from recon.io.cubes import CASSI_28_WAVELENGTHS, standard_wavelengths
+
+    wl = standard_wavelengths(28)
+    assert wl.shape == (28,) and np.all(np.diff(wl) > 0)
+    assert 450 < wl[0] < 455 and 645 < wl[-1] < 650
+    np.testing.assert_array_equal(wl, CASSI_28_WAVELENGTHS)
+    # Their spacing widens to the red, as a prism's dispersion narrows there.
+    assert np.diff(wl)[0] < np.diff(wl)[-1]
+    np.testing.assert_allclose(standard_wavelengths(11), np.linspace(450, 650, 11))
