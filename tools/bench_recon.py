@@ -36,10 +36,13 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.io.atomic import atomic_path
-from recon.metrics import psnr
-from recon.operators import kaleidoscope_cassi, standard_cassi
-from recon.solvers import solve
+# This checkout's recon, not whichever an editable install points at.
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from recon.io.atomic import atomic_path  # noqa: E402
+from recon.metrics import psnr  # noqa: E402
+from recon.operators import kaleidoscope_cassi, standard_cassi  # noqa: E402
+from recon.solvers import solve  # noqa: E402
 
 # Per-solver TV weights and options used by the benchmark (data in [0, 1]).  tau = 0.15 is the
 # paper's TwIST setting; GAP-TV's tau is its per-step denoising weight.

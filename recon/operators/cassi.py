@@ -32,6 +32,7 @@ from typing import Sequence
 
 import numpy as np
 
+from recon import kernels
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
 from recon.operators.dispersion import (
@@ -124,6 +125,7 @@ class CassiOperator(LinearOperator):
         self.n_bands = n_bands
         self._plan = [_view_plan(v, row, extra) for v, row in zip(self.views, self.offsets)]
         self._masks = InPrecision([p.mask for p in self._plan])
+        self._kernel_plan = _KernelPlan(self._plan)
         self._row_norms = None
         super().__init__(cube_shape, (self.n_views, vshape[0], vshape[1] + extra))
 
@@ -140,9 +142,25 @@ class CassiOperator(LinearOperator):
     def _forward(self, x):
         dt = work_dtype(x)
         x = x.astype(dt, copy=False)
+        kp = self._kernel_plan
+        if kp.views.size and kernels.enabled():
+            from recon.kernels import cassi as kcassi
+
+            # The kernel overwrites the permutation views' rows; only warped views add.
+            out = (np.empty if kp.views.size == self.n_views else np.zeros)(self.oshape, dt)
+            kcassi.forward(np.ascontiguousarray(x), *kp.arrays(dt), out)
+        else:
+            out = np.zeros(self.oshape, dtype=dt)
+            self._forward_permutations(x, out)
+        self._forward_warped(x, out)
+        return out
+
+    def _forward_permutations(self, x, out):
+        """The NumPy reference of :func:`recon.kernels.cassi.forward`: adds the permutation
+        views' measurements into ``out`` (zeros)."""
+        dt = out.dtype
         hv, wv = self.views[0].mask.shape
         wm = self.oshape[2]
-        out = np.zeros(self.oshape, dtype=dt)
         masks = self._masks(dt)
         perm = [k for k, p in enumerate(self._plan) if p.warp is None]
         # Where each view accumulates: its measurement, or a scratch image when it is flipped.
@@ -186,7 +204,15 @@ class CassiOperator(LinearOperator):
                 np.add(g[1:], qf[:-1], out=g[1:])
             if self._plan[k].flip:
                 np.copyto(out[k], acc[k][self._plan[k].flip])
-        # Resampled views.
+
+    def _forward_warped(self, x, out):
+        """Adds the measurements of the views with a resampling warp into ``out``."""
+        if all(p.warp is None for p in self._plan):
+            return
+        dt = out.dtype
+        hv, wv = self.views[0].mask.shape
+        wm = self.oshape[2]
+        masks = self._masks(dt)
         n = (hv - 1) * wm + wv
         pad = np.zeros((hv, wm), dtype=dt)
         body, flat = pad[:, :wv], pad.reshape(-1)[:n]
@@ -213,6 +239,42 @@ class CassiOperator(LinearOperator):
     def _adjoint(self, y):
         dt = work_dtype(y)
         y = np.ascontiguousarray(y, dtype=dt)
+        kp = self._kernel_plan
+        if kp.views.size and kernels.enabled():
+            from recon.kernels import cassi as kcassi
+
+            out = np.empty(self.ishape, dtype=dt)
+            kcassi.adjoint(y, *kp.arrays(dt), None, dt(1), out)
+        else:
+            out = self._adjoint_permutations(y)
+        self._adjoint_warped(y, out)
+        return out
+
+    def adjoint_add(self, y, base, scale=1.0, out=None):
+        r""":math:`b + s H^\top y` in one pass over the cube when every view is a permutation
+        (see :meth:`LinearOperator.adjoint_add <recon.operators.base.LinearOperator.adjoint_add>`).
+        """
+        kp = self._kernel_plan
+        base = np.asarray(base)
+        dt = base.dtype
+        if not (kp.views.size == self.n_views and kernels.enabled() and base.shape == self.ishape
+                and dt in (np.float32, np.float64) and base.flags.c_contiguous
+                and (out is None or (out.dtype == dt and out.flags.c_contiguous))):
+            return super().adjoint_add(y, base, scale, out)
+        y = np.asarray(y)
+        if y.shape != self.oshape:
+            raise ValueError(f"{type(self).__name__}: input shape {y.shape} != {self.oshape}")
+        from recon.kernels import cassi as kcassi
+
+        out = np.empty(self.ishape, dtype=dt) if out is None else out
+        kcassi.adjoint(np.ascontiguousarray(y, dtype=dt), *kp.arrays(dt), base,
+                       dt.type(scale), out)
+        return out
+
+    def _adjoint_permutations(self, y):
+        """The NumPy reference of :func:`recon.kernels.cassi.adjoint`: the permutation
+        views' part of the adjoint (zeros without such views)."""
+        dt = y.dtype
         hv, wv = self.views[0].mask.shape
         wm = self.oshape[2]
         masks = self._masks(dt)
@@ -256,7 +318,16 @@ class CassiOperator(LinearOperator):
                     else:
                         np.multiply(z, ms[i], out=b)
                         np.add(o, b, out=o)
-        # Resampled views.
+        return out
+
+    def _adjoint_warped(self, y, out):
+        """Adds the adjoint of the views with a resampling warp into ``out``."""
+        if all(p.warp is None for p in self._plan):
+            return out
+        dt = out.dtype
+        hv, wv = self.views[0].mask.shape
+        wm = self.oshape[2]
+        masks = self._masks(dt)
         n = (hv - 1) * wm + wv
         zflat = np.zeros(hv * wm, dtype=dt)
         z, zn = zflat.reshape(hv, wm)[:, :wv], zflat[:n]
@@ -314,6 +385,36 @@ class _Plan:
     subpixel: bool
     flip: tuple
     warp: Warp | None
+
+
+class _KernelPlan:
+    """The permutation views of a plan as the arrays :mod:`recon.kernels.cassi` takes.
+
+    ``views`` holds the indices of the views without a resampling warp; ``arrays(dtype)``
+    returns ``(masks, a, c0, c1, sub, rowflip, colflip, views)`` with masks and weights in
+    ``dtype`` (made on first use per precision, then kept).
+    """
+
+    def __init__(self, plan: list[_Plan]):
+        ids = [k for k, p in enumerate(plan) if p.warp is None]
+        self.views = np.array(ids, dtype=np.int64)
+        self._plan = [plan[k] for k in ids]
+        self._cache: dict = {}
+
+    def arrays(self, dtype):
+        dtype = np.dtype(dtype)
+        if dtype not in self._cache:
+            plans = self._plan
+            parts = np.array([[p for p in pl.parts] for pl in plans], dtype=np.float64)
+            a = np.ascontiguousarray(parts[..., 0].astype(np.int64))
+            t = parts[..., 1]
+            self._cache[dtype] = (
+                np.ascontiguousarray(np.stack([pl.mask for pl in plans]), dtype=dtype),
+                a, (1.0 - t).astype(dtype), t.astype(dtype), t != 0.0,
+                np.array([bool(pl.flip) and pl.flip[0] != slice(None) for pl in plans]),
+                np.array([bool(pl.flip) and pl.flip[1] != slice(None) for pl in plans]),
+                self.views)
+        return self._cache[dtype]
 
 
 def _view_plan(view: View, offsets: np.ndarray, extra: int) -> _Plan:

@@ -31,8 +31,10 @@ and the dual iterates with step :math:`\theta = 1/4`:
 - anisotropic (Chambolle 2005 projected gradient)
   :math:`p \leftarrow \Pi_{[-1,1]}\bigl(p - (\theta/\lambda)\nabla x\bigr)`.
 
-Every band is independent; all bands are processed at once by whole-array NumPy operations.  The
-dual can be kept between calls (:class:`TVProx`, or the ``dual=`` argument of :func:`prox_tv`):
+Every band is independent.  With Numba, all dual iterations and the result are one fused pass
+over memory (:func:`recon.kernels.tv.chambolle`, bands in parallel); the NumPy path below
+processes all bands at once by whole-array operations and is the reference the kernel is tested
+against.  The dual can be kept between calls (:class:`TVProx`, or the ``dual=`` argument of :func:`prox_tv`):
 inside an outer solver the argument :math:`v` changes little from one iteration to the next, so a
 warm-started dual needs only one or two inner iterations.
 
@@ -52,6 +54,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from recon import kernels
 from recon.errors import InputError
 
 __all__ = ["gradient", "divergence", "tv_norm", "tv_norm_per_band", "prox_tv", "TVProx",
@@ -148,6 +151,13 @@ def tv_norm_per_band(x: np.ndarray, isotropic: bool = True,
     """
     x = np.ascontiguousarray(_check_cube(x))
     n_bands, h, w = x.shape
+    if kernels.enabled():
+        from recon.kernels import tv as ktv
+
+        row_tv = np.empty((n_bands, h), dtype=np.float64)
+        with kernels.threads(threads):
+            ktv.tv_rows(x, bool(isotropic), row_tv)
+        return row_tv.sum(axis=1)
     rows = x.reshape(n_bands * h, w)
     row_tv = np.empty(n_bands * h, dtype=np.float64)
     strip = max(1, _TV_STRIP_BYTES // max(1, w * x.itemsize))
@@ -348,6 +358,14 @@ class TVProx:
             self.reset()
         if v.dtype != self.dtype:
             v = v.astype(self.dtype)
+        if kernels.enabled() and out.flags.c_contiguous and self.dual.flags.c_contiguous:
+            from recon.kernels import tv as ktv
+
+            t = self.dtype.type
+            with kernels.threads(self.threads):
+                ktv.chambolle(np.ascontiguousarray(v), self.dual, t(weight), t(_STEP / weight),
+                              t(_STEP), n_iter, self.isotropic, out)
+            return out
         if len(self._chunks) == 1 or self.threads == 1:
             for sl in self._chunks:
                 self._run(sl, v, weight, n_iter, out)

@@ -30,8 +30,8 @@ import numpy as np
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
 from recon.prox.tv import TVProx, tv_norm
-from recon.solvers.base import (IterationLoop, SolverResult, check_problem, data_misfit,
-                                operator_norm_sq)
+from recon.solvers.base import (IterationLoop, SolverResult, axpy, check_problem,
+                                data_misfit, operator_norm_sq)
 
 __all__ = ["fista_tv"]
 
@@ -94,12 +94,16 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float =
     restarts = 0
     prev_obj = math.inf
     history: list[float] = []
+    step = np.empty_like(f)
+    # Residuals g - H(.) of f_k and f_{k-1} (computed for the restart test) give that of
+    # z_{k+1} = f_k + b (f_k - f_{k-1}) by linearity: g - Hz = r_k + b (r_k - r_{k-1}).  So
+    # with the restart on, one forward per iteration instead of two.
+    r_f = r_f_prev = r_z = None
     for it in range(1, iters + 1):
-        r = op.forward(z)
-        np.subtract(g, r, out=r)
-        step = op.adjoint(r).astype(dtype, copy=False)
-        step *= 1.0 / lip
-        step += z
+        if r_z is None:
+            r_z = op.forward(z)
+            np.subtract(g, r_z, out=r_z)
+        op.adjoint_add(r_z, z, 1.0 / lip, out=step)
         f_prev, f = f, f_prev
         prox(step, tau / lip, tv_iters, warm=warm_dual, out=f)
         # Adaptive restart (O'Donoghue & Candes 2015): momentum is dropped when the objective
@@ -109,16 +113,24 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float =
         np.subtract(f, f_prev, out=z)
         obj = None
         if objective or restart:
-            obj = data_misfit(op, g, f)[0] + tau * tv_norm(f, isotropic)
+            misfit, r_new = data_misfit(op, g, f)
+            r_f_prev, r_f = r_f, r_new
+            obj = misfit + tau * tv_norm(f, isotropic)
         if restart and (float(np.vdot(step, z)) > 0 or obj > prev_obj):
             t = 1.0
             restarts += 1
         prev_obj = obj if obj is not None else prev_obj
         t_next = 0.5 * (1.0 + math.sqrt(1.0 + 4.0 * t * t))
-        # z = f + ((t-1)/t_next) (f - f_prev)
-        z *= (t - 1.0) / t_next
-        z += f
+        b = (t - 1.0) / t_next
+        axpy(f, b, z, out=z, threads=threads)  # z = f + b (f - f_prev)
         t = t_next
+        r_z = None
+        if r_f is not None and b == 0.0:
+            r_z = r_f.copy()
+        elif r_f is not None and r_f_prev is not None:
+            r_z = np.subtract(r_f, r_f_prev)
+            r_z *= b
+            r_z += r_f
         if objective:
             history.append(obj)
         change = loop.relative_change(f, f_prev, step) if loop.needs_change else None

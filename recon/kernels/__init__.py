@@ -1,0 +1,91 @@
+r"""Fused Numba kernels for the hot loops of :mod:`recon`, with the NumPy code as reference.
+
+The operators (:mod:`recon.operators`), the TV prox (:mod:`recon.prox`) and the solvers
+(:mod:`recon.solvers`) each keep a plain NumPy implementation.  Where a kernel here is
+measurably faster they call it instead; every kernel is tested against the NumPy path it
+replaces (``tests/recon/kernels``).  A kernel makes one pass over memory where the NumPy code
+makes several (a Chambolle prox of any number of dual iterations is a single pass, a CASSI
+forward reads the cube once), and it runs in the input's precision (float32 in the solvers,
+float64 for precision checks).
+
+Numba is optional: without it, or with ``KALEIDOSPEC_KERNELS=numpy`` in the environment, or
+inside :func:`numpy_only`, :func:`enabled` is False and every caller takes its NumPy path.
+Kernels are compiled on first use and cached on disk (``cache=True``, next to this package
+or in ``NUMBA_CACHE_DIR``), so only the first process on a machine pays the compilation.
+
+Results never depend on the number of threads: work is split over bands or rows whose
+results are independent, and reductions are summed per row, then in a fixed order.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import threading
+
+__all__ = ["enabled", "numpy_only", "threads", "jit"]
+
+_STATE = threading.local()
+_NUMBA: list = []  # [numba module or None] once looked up: importing it costs ~0.3 s
+
+
+def _numba():
+    if not _NUMBA:
+        try:
+            import numba
+        except ImportError:  # pragma: no cover - depends on the installation
+            numba = None
+        _NUMBA.append(numba)
+    return _NUMBA[0]
+
+
+#: Fast-math flags of every kernel: reassociation (vectorised sums), contraction (FMA) and
+#: reciprocal/approximate-function licences, but not ``nnan``/``ninf``: the solvers rely on
+#: NaN and infinity propagating (and the stress tests check that they never appear).
+FASTMATH = frozenset({"nsz", "arcp", "contract", "reassoc", "afn"})
+
+
+def enabled() -> bool:
+    """Whether the Numba kernels are used (Numba importable, not switched off)."""
+    if getattr(_STATE, "numpy_only", False):
+        return False
+    if os.environ.get("KALEIDOSPEC_KERNELS", "").strip().lower() == "numpy":
+        return False
+    return _numba() is not None
+
+
+@contextlib.contextmanager
+def numpy_only():
+    """Within this block (in this thread) every caller takes its NumPy reference path."""
+    old = getattr(_STATE, "numpy_only", False)
+    _STATE.numpy_only = True
+    try:
+        yield
+    finally:
+        _STATE.numpy_only = old
+
+
+@contextlib.contextmanager
+def threads(n: int | None):
+    """Run the kernels called in this block on at most ``n`` threads (``None``: all).
+
+    Numba's thread count is per calling thread, so this does not affect other threads.
+    """
+    nb = _numba() if n is not None else None
+    if nb is None:
+        yield
+        return
+    old = nb.get_num_threads()
+    nb.set_num_threads(max(1, min(int(n), nb.config.NUMBA_NUM_THREADS)))
+    try:
+        yield
+    finally:
+        nb.set_num_threads(old)
+
+
+def jit(parallel: bool = False):
+    """``numba.njit`` with the package's settings (cached, :data:`FASTMATH`)."""
+    # error_model="numpy": a float division by zero gives inf/nan as in NumPy instead of
+    # raising, which also lets LLVM vectorise loops that divide.
+    return _numba().njit(cache=True, parallel=parallel, fastmath=set(FASTMATH), nogil=True,
+                         error_model="numpy")
