@@ -57,7 +57,7 @@ def forward(x, masks, a, c0, c1, sub, rowflip, colflip, vid, out):
     Parameters
     ----------
     x : ndarray, shape (L, H, W)
-        The cube (float32 or float64; masks, ``c0``, ``c1`` and ``out`` in the same precision).
+        The cube (float32; masks, ``c0``, ``c1`` and ``out`` in the same precision).
     masks : ndarray, shape (K, H, W)
         The views' masks in plan coordinates.
     a : ndarray of int64, shape (K, L)
@@ -93,15 +93,17 @@ def forward(x, masks, a, c0, c1, sub, rowflip, colflip, vid, out):
 
 
 @jit(parallel=True)
-def adjoint(y, masks, a, c0, c1, sub, rowflip, colflip, vid, base, scale, out):
+def adjoint(y, masks, a, c0, c1, sub, rowflip, colflip, vid, add, base, scale, out):
     r"""Adjoint of :func:`forward`, optionally added to a cube: ``out`` :math:`= b + s
     \sum_k H_k^\top y_{\mathrm{vid}[k]}`.
 
     Parameters as :func:`forward`, with ``y`` of shape (K', H, Wm), and
 
-    base : ndarray, shape (L, H, W), or None
-        :math:`b`; ``None`` for the plain adjoint (then ``scale`` is not used).  May be
-        ``out`` itself.
+    add : bool
+        Whether to add to ``base``; if not, ``out`` is the plain adjoint and ``base`` and
+        ``scale`` are not used (one compiled signature serves both).
+    base : ndarray, shape (L, H, W)
+        :math:`b`; may be ``out`` itself.
     scale : float
         :math:`s`, in the working precision.
     out : ndarray, shape (L, H, W)
@@ -126,7 +128,7 @@ def adjoint(y, masks, a, c0, c1, sub, rowflip, colflip, vid, base, scale, out):
                     z[k, :wm] = src
                 z[k, wm] = 0
             for l in range(n_bands):
-                o = out[l, i] if base is None else acc
+                o = acc if add else out[l, i]
                 for k in range(n_views):
                     # Slices indexed by the bare loop counter (see _shift_add_row).
                     m, al = masks[k, i], a[k, l]
@@ -145,7 +147,7 @@ def adjoint(y, masks, a, c0, c1, sub, rowflip, colflip, vid, base, scale, out):
                     else:
                         for j in range(w):
                             o[j] += m[j] * z0[j]
-                if base is not None:
+                if add:
                     b, ol = base[l, i], out[l, i]
                     for j in range(w):
                         ol[j] = b[j] + scale * acc[j]

@@ -117,7 +117,7 @@ def chambolle(v, p, weight, s, theta, n_iter, isotropic, out):
     Parameters
     ----------
     v : ndarray, shape (L, H, W)
-        The prox input (float32 or float64; every argument in that precision).
+        The prox input (float32; every argument in that precision).
     p : ndarray, shape (2, L, H, W)
         The dual, updated in place; its entries past the Neumann boundary (last row of
         :math:`p^0`, last column of :math:`p^1`) are set to zero first.

@@ -143,7 +143,7 @@ class CassiOperator(LinearOperator):
         dt = work_dtype(x)
         x = x.astype(dt, copy=False)
         kp = self._kernel_plan
-        if kp.views.size and kernels.enabled():
+        if kp.views.size and kernels.usable(x):
             from recon.kernels import cassi as kcassi
 
             # The kernel overwrites the permutation views' rows; only warped views add.
@@ -240,11 +240,11 @@ class CassiOperator(LinearOperator):
         dt = work_dtype(y)
         y = np.ascontiguousarray(y, dtype=dt)
         kp = self._kernel_plan
-        if kp.views.size and kernels.enabled():
+        if kp.views.size and kernels.usable(y):
             from recon.kernels import cassi as kcassi
 
             out = np.empty(self.ishape, dtype=dt)
-            kcassi.adjoint(y, *kp.arrays(dt), None, dt(1), out)
+            kcassi.adjoint(y, *kp.arrays(dt), False, out, dt(1), out)
         else:
             out = self._adjoint_permutations(y)
         self._adjoint_warped(y, out)
@@ -257,8 +257,8 @@ class CassiOperator(LinearOperator):
         kp = self._kernel_plan
         base = np.asarray(base)
         dt = base.dtype
-        if not (kp.views.size == self.n_views and kernels.enabled() and base.shape == self.ishape
-                and dt in (np.float32, np.float64) and base.flags.c_contiguous
+        if not (kp.views.size == self.n_views and kernels.usable(base)
+                and base.shape == self.ishape and base.flags.c_contiguous
                 and (out is None or (out.dtype == dt and out.flags.c_contiguous))):
             return super().adjoint_add(y, base, scale, out)
         y = np.asarray(y)
@@ -267,7 +267,7 @@ class CassiOperator(LinearOperator):
         from recon.kernels import cassi as kcassi
 
         out = np.empty(self.ishape, dtype=dt) if out is None else out
-        kcassi.adjoint(np.ascontiguousarray(y, dtype=dt), *kp.arrays(dt), base,
+        kcassi.adjoint(np.ascontiguousarray(y, dtype=dt), *kp.arrays(dt), True, base,
                        dt.type(scale), out)
         return out
 

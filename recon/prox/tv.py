@@ -151,7 +151,7 @@ def tv_norm_per_band(x: np.ndarray, isotropic: bool = True,
     """
     x = np.ascontiguousarray(_check_cube(x))
     n_bands, h, w = x.shape
-    if kernels.enabled():
+    if kernels.usable(x):
         from recon.kernels import tv as ktv
 
         row_tv = np.empty((n_bands, h), dtype=np.float64)
@@ -358,7 +358,8 @@ class TVProx:
             self.reset()
         if v.dtype != self.dtype:
             v = v.astype(self.dtype)
-        if kernels.enabled() and out.flags.c_contiguous and self.dual.flags.c_contiguous:
+        if kernels.usable(v, out, self.dual) and out.flags.c_contiguous \
+                and self.dual.flags.c_contiguous:
             from recon.kernels import tv as ktv
 
             t = self.dtype.type

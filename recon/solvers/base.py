@@ -139,7 +139,7 @@ def axpy(x: np.ndarray, a: float, y: np.ndarray, out: np.ndarray,
     One pass (:func:`recon.kernels.vector.axpy`) where the kernels are on, else two NumPy
     passes.
     """
-    if kernels.enabled() and x.flags.c_contiguous and y.flags.c_contiguous \
+    if kernels.usable(x, y, out) and x.flags.c_contiguous and y.flags.c_contiguous \
             and out.flags.c_contiguous:
         from recon.kernels import vector as kvec
 

@@ -318,7 +318,7 @@ def _combine(a: float, u: np.ndarray, b: float, v: np.ndarray, c: float, w: np.n
     NumPy block by block: no array-sized temporaries, and each block is read once from memory
     (``out`` must alias none of the inputs); threaded over spans."""
     uf, vf, wf, of = u.reshape(-1), v.reshape(-1), w.reshape(-1), out.reshape(-1)
-    if kernels.enabled():
+    if kernels.usable(u, v, w, out):
         from recon.kernels import vector as kvec
 
         t = out.dtype.type
