@@ -102,9 +102,18 @@ def threads(n: int | None):
         nb.set_num_threads(old)
 
 
-def jit(parallel: bool = False):
-    """``numba.njit`` with the package's settings (cached, :data:`FASTMATH`)."""
+def jit(parallel: bool = False, refcount: bool = True):
+    """``numba.njit`` with the package's settings (cached, :data:`FASTMATH`).
+
+    ``refcount=False`` is for the row helpers, which slice but never allocate: without
+    Numba's reference counting a slice costs no atomic update of its parent's count.  Those
+    updates, on arrays that both threads slice, made the per-row overhead the larger part of
+    a kernel's time (the cache line of the count moves between the cores at every slice).
+    """
     # error_model="numpy": a float division by zero gives inf/nan as in NumPy instead of
     # raising, which also lets LLVM vectorise loops that divide.
-    return _numba().njit(cache=True, parallel=parallel, fastmath=set(FASTMATH), nogil=True,
-                         error_model="numpy")
+    opts = dict(cache=True, parallel=parallel, fastmath=set(FASTMATH), nogil=True,
+                error_model="numpy")
+    if not refcount:
+        opts["_nrt"] = False
+    return _numba().njit(**opts)

@@ -28,86 +28,89 @@ __all__ = ["chambolle", "tv_rows"]
 
 
 # The row loops index slices with the bare loop counter: an index such as ``j - 1`` makes
-# Numba check for negative indices, which stops LLVM from vectorising the loop.
+# Numba check for negative indices, which stops LLVM from vectorising the loop.  Each band is
+# seen flat (H·W), so that a row's left neighbour term :math:`p^1_{q,j-1}` at ``j = 0`` reads
+# the last column of the row above, which is zero (Neumann): rows need no first-column case
+# and every loop runs over the full width.  Rows of ``y`` carry one more element, a copy of
+# their last, so that the horizontal difference past the last column is zero without a case.
 
 
-@jit()
-def _y_row(v, p0, p1, q, s, theta, out):
-    r"""Row ``q`` of :math:`y = s v - \theta\,\mathrm{div}\,p` into ``out``.
+@jit(refcount=False)
+def _y_first(vb, p0, p1, w, s, theta, ybuf, k, b):
+    r"""Row 0 of :math:`y = s v - \theta\,\mathrm{div}\,p` into ``ybuf[k, b, :w]`` (no row
+    above and no column left of the first); ``out[w] = out[w-1]``."""
+    out = ybuf[k, b]
+    out[0] = s * vb[0] - theta * (p0[0] + p1[0])
+    v1, a1, c1, c0, o1 = vb[1:w], p0[1:w], p1[1:w], p1[:w - 1], out[1:w]
+    for j in range(w - 1):
+        o1[j] = s * v1[j] - theta * (a1[j] + c1[j] - c0[j])
+    out[w] = out[w - 1]
 
-    :math:`(\mathrm{div}\,p)_{q,j} = p^0_{q,j}-p^0_{q-1,j}+p^1_{q,j}-p^1_{q,j-1}`, the terms
-    before the first row or column being zero (Neumann).
+
+@jit(refcount=False)
+def _y_row(vb, p0, p1, o, w, s, theta, ybuf, k, b):
+    r"""The row at flat offset ``o > 0`` of :math:`y` into ``out = ybuf[k, b]``;
+    ``out[w] = out[w-1]``.
+
+    :math:`(\mathrm{div}\,p)_{q,j} = p^0_{q,j}-p^0_{q-1,j}+p^1_{q,j}-p^1_{q,j-1}`.
     """
-    w = out.shape[0]
-    vq, a, c = v[q], p0[q], p1[q]
-    o1, v1, a1, c1, c0 = out[1:], vq[1:], a[1:], c[1:], c[:w - 1]
-    if q > 0:
-        b = p0[q - 1]
-        b1 = b[1:]
-        out[0] = s * vq[0] - theta * (a[0] - b[0] + c[0])
-        for j in range(w - 1):
-            o1[j] = s * v1[j] - theta * (a1[j] - b1[j] + c1[j] - c0[j])
-    else:
-        out[0] = s * vq[0] - theta * (a[0] + c[0])
-        for j in range(w - 1):
-            o1[j] = s * v1[j] - theta * (a1[j] + c1[j] - c0[j])
+    out = ybuf[k, b]
+    vr, a, u = vb[o:o + w], p0[o:o + w], p0[o - w:o]
+    c, cm = p1[o:o + w], p1[o - 1:o - 1 + w]
+    for j in range(w):
+        out[j] = s * vr[j] - theta * (a[j] - u[j] + c[j] - cm[j])
+    out[w] = out[w - 1]
 
 
-@jit()
-def _dual_row(p0, p1, q, last, ycur, ynext, isotropic):
-    r"""Chambolle's update of dual row ``q`` from :math:`\nabla y` (rows ``ycur``, ``ynext``).
+@jit(refcount=False)
+def _dual_row(p0, p1, o, w, ybuf, k, bc, bn, isotropic, last):
+    r"""Chambolle's update of the dual row at flat offset ``o`` from :math:`\nabla y` (rows
+    ``ycur = ybuf[k, bc]``, ``ynext = ybuf[k, bn]``).
 
     Isotropic: :math:`p \leftarrow (p-\nabla y)/(1+\|\nabla y\|_2)`; anisotropic:
-    :math:`p \leftarrow \Pi_{[-1,1]}(p-\nabla y)`.  On the last row the vertical difference
-    is zero, on the last column the horizontal one (Neumann), so those dual entries stay 0.
+    :math:`p \leftarrow \Pi_{[-1,1]}(p-\nabla y)`.  On the last row (``last``) the vertical
+    difference is zero and :math:`p^0` stays zero; on the last column the horizontal one is
+    (``ycur[w] = ycur[w-1]``), so :math:`p^1` stays zero there.
     """
-    w = ycur.shape[0]
+    ycur, ynext = ybuf[k, bc], ybuf[k, bn]
     one = ycur.dtype.type(1.0)
-    a, b = p0[q], p1[q]
-    y0, y1, yn = ycur[:w - 1], ycur[1:], ynext[:w - 1]
-    if isotropic:
-        if last:
-            # p0 is zero on the last row and stays so; so is p1 on the last column.
-            for j in range(w - 1):
+    a, b = p0[o:o + w], p1[o:o + w]
+    y0, y1, yn = ycur[:w], ycur[1:w + 1], ynext[:w]
+    if last:
+        if isotropic:
+            for j in range(w):
                 gx = y1[j] - y0[j]
                 b[j] = (b[j] - gx) / (one + np.abs(gx))
         else:
-            for j in range(w - 1):
-                gy = yn[j] - y0[j]
-                gx = y1[j] - y0[j]
-                # One division instead of two (divisions bound this loop).
-                d = one / (one + np.sqrt(gy * gy + gx * gx))
-                a[j] = (a[j] - gy) * d
-                b[j] = (b[j] - gx) * d
-            gy = ynext[w - 1] - ycur[w - 1]
-            a[w - 1] = (a[w - 1] - gy) / (one + np.abs(gy))
+            for j in range(w):
+                b[j] = min(max(b[j] - (y1[j] - y0[j]), -one), one)
+    elif isotropic:
+        for j in range(w):
+            gy = yn[j] - y0[j]
+            gx = y1[j] - y0[j]
+            # One division instead of two (divisions bound this loop).
+            d = one / (one + np.sqrt(gy * gy + gx * gx))
+            a[j] = (a[j] - gy) * d
+            b[j] = (b[j] - gx) * d
     else:
-        if last:
-            for j in range(w - 1):
-                b[j] = min(max(b[j] - (y1[j] - y0[j]), -one), one)
-        else:
-            for j in range(w - 1):
-                a[j] = min(max(a[j] - (yn[j] - y0[j]), -one), one)
-                b[j] = min(max(b[j] - (y1[j] - y0[j]), -one), one)
-            a[w - 1] = min(max(a[w - 1] - (ynext[w - 1] - ycur[w - 1]), -one), one)
+        for j in range(w):
+            a[j] = min(max(a[j] - (yn[j] - y0[j]), -one), one)
+            b[j] = min(max(b[j] - (y1[j] - y0[j]), -one), one)
 
 
-@jit()
-def _out_row(v, p0, p1, q, weight, out):
-    r"""Row ``q`` of :math:`x = v - \lambda\,\mathrm{div}\,p`."""
-    w = v.shape[1]
-    vq, a, c, oq = v[q], p0[q], p1[q], out[q]
-    o1, v1, a1, c1, c0 = oq[1:], vq[1:], a[1:], c[1:], c[:w - 1]
-    if q > 0:
-        b = p0[q - 1]
-        b1 = b[1:]
-        oq[0] = vq[0] - weight * (a[0] - b[0] + c[0])
-        for j in range(w - 1):
-            o1[j] = v1[j] - weight * (a1[j] - b1[j] + c1[j] - c0[j])
-    else:
-        oq[0] = vq[0] - weight * (a[0] + c[0])
+@jit(refcount=False)
+def _out_row(vb, p0, p1, o, w, weight, ob):
+    r"""The row at flat offset ``o`` of :math:`x = v - \lambda\,\mathrm{div}\,p`."""
+    if o == 0:
+        ob[0] = vb[0] - weight * (p0[0] + p1[0])
+        v1, a1, c1, c0, o1 = vb[1:w], p0[1:w], p1[1:w], p1[:w - 1], ob[1:w]
         for j in range(w - 1):
             o1[j] = v1[j] - weight * (a1[j] + c1[j] - c0[j])
+        return
+    vr, a, u, orow = vb[o:o + w], p0[o:o + w], p0[o - w:o], ob[o:o + w]
+    c, cm = p1[o:o + w], p1[o - 1:o - 1 + w]
+    for j in range(w):
+        orow[j] = vr[j] - weight * (a[j] - u[j] + c[j] - cm[j])
 
 
 @jit(parallel=True)
@@ -117,7 +120,7 @@ def chambolle(v, p, weight, s, theta, n_iter, isotropic, out):
     Parameters
     ----------
     v : ndarray, shape (L, H, W)
-        The prox input (float32; every argument in that precision).
+        The prox input (float32; every argument in that precision), C-contiguous.
     p : ndarray, shape (2, L, H, W)
         The dual, updated in place; its entries past the Neumann boundary (last row of
         :math:`p^0`, last column of :math:`p^1`) are set to zero first.
@@ -136,28 +139,28 @@ def chambolle(v, p, weight, s, theta, n_iter, isotropic, out):
     """
     n_bands, h, w = v.shape
     for l in prange(n_bands):
-        vb, ob = v[l], out[l]
-        p0, p1 = p[0, l], p[1, l]
-        p0[h - 1, :] = 0
-        p1[:, w - 1] = 0
+        vb, ob = v[l].reshape(-1), out[l].reshape(-1)
+        p0, p1 = p[0, l].reshape(-1), p[1, l].reshape(-1)
+        p0[(h - 1) * w:] = 0
+        for i in range(h):
+            p1[i * w + w - 1] = 0
         # ybuf[k, i % 2] is row i of iteration k's y.
-        ybuf = np.empty((max(n_iter, 1), 2, w), dtype=v.dtype)
+        ybuf = np.empty((max(n_iter, 1), 2, w + 1), dtype=v.dtype)
         for r in range(h + n_iter):
             for k in range(n_iter):
                 q = r - k
                 if q < 0 or q >= h:
                     continue
-                ycur = ybuf[k, q % 2]
-                ynext = ybuf[k, (q + 1) % 2]
+                bc, bn = q % 2, (q + 1) % 2
                 if q == 0:
-                    _y_row(vb, p0, p1, q, s, theta, ycur)
+                    _y_first(vb, p0, p1, w, s, theta, ybuf, k, bc)
                 if q + 1 < h:
-                    _y_row(vb, p0, p1, q + 1, s, theta, ynext)
-                _dual_row(p0, p1, q, q == h - 1, ycur, ynext, isotropic)
+                    _y_row(vb, p0, p1, (q + 1) * w, w, s, theta, ybuf, k, bn)
+                _dual_row(p0, p1, q * w, w, ybuf, k, bc, bn, isotropic, q == h - 1)
             # The last iteration has finished row r - n_iter + 1 (and all above it).
             q = r - n_iter + 1 if n_iter > 0 else r
             if 0 <= q < h:
-                _out_row(vb, p0, p1, q, weight, ob)
+                _out_row(vb, p0, p1, q * w, w, weight, ob)
 
 
 @jit(parallel=True)
