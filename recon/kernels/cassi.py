@@ -32,22 +32,31 @@ __all__ = ["forward", "adjoint"]
 _ROWS = 8
 
 
-@jit()
-def _shift_add_row(x, m, a, c0, c1, sub, acc):
-    r"""``acc[a + j] += c0 u[j] + c1 u[j-1]`` with :math:`u = m\odot x` (zero outside)."""
-    # Loops index slices with the bare loop counter: an index such as ``a + j`` makes Numba
-    # check for negative indices, which stops LLVM from vectorising the loop (6x slower).
-    w = x.shape[0]
-    if not sub:
-        o = acc[a:a + w]
-        for j in range(w):
-            o[j] += m[j] * x[j]
-        return
-    acc[a] += c0 * (m[0] * x[0])
-    o, m1, x1, m0, x0 = acc[a + 1:a + w], m[1:], x[1:], m[:w - 1], x[:w - 1]
-    for j in range(w - 1):
-        o[j] += c0 * (m1[j] * x1[j]) + c1 * (m0[j] * x0[j])
-    acc[a + w] += c1 * (m[w - 1] * x[w - 1])
+@jit(refcount=False)
+def _view_row(x, masks, k, i, a, c0, c1, sub, acc):
+    r"""``acc`` :math:`= \sum_l S_{k,l}(M_k \odot x_l)` on row ``i``: every band of one view.
+
+    One call per view and row (not per band), and no reference counting of the slices (see
+    :func:`recon.kernels.jit`): the per-call cost was the larger part of the kernel's time.
+    """
+    n_bands, h, w = x.shape
+    m = masks[k, i]
+    m1, m0 = m[1:], m[:w - 1]
+    for j in range(acc.shape[0]):
+        acc[j] = 0
+    for l in range(n_bands):
+        xr, al = x[l, i], a[k, l]
+        if not sub[k, l]:
+            o = acc[al:al + w]
+            for j in range(w):
+                o[j] += m[j] * xr[j]
+            continue
+        b0, b1 = c0[k, l], c1[k, l]
+        acc[al] += b0 * (m[0] * xr[0])
+        o, x1, x0 = acc[al + 1:al + w], xr[1:], xr[:w - 1]
+        for j in range(w - 1):
+            o[j] += b0 * (m1[j] * x1[j]) + b1 * (m0[j] * x0[j])
+        acc[al + w] += b1 * (m[w - 1] * xr[w - 1])
 
 
 @jit(parallel=True)
@@ -81,10 +90,7 @@ def forward(x, masks, a, c0, c1, sub, rowflip, colflip, vid, out):
         acc = np.empty(wm, dtype=out.dtype)
         for i in range(task * _ROWS, min(h, (task + 1) * _ROWS)):
             for k in range(n_views):
-                acc[:] = 0
-                for l in range(n_bands):
-                    _shift_add_row(x[l, i], masks[k, i], a[k, l], c0[k, l], c1[k, l],
-                                   sub[k, l], acc)
+                _view_row(x, masks, k, i, a, c0, c1, sub, acc)
                 row = out[vid[k], h - 1 - i if rowflip[k] else i]
                 if colflip[k]:
                     row[:] = acc[::-1]
@@ -128,6 +134,18 @@ def adjoint(y, masks, a, c0, c1, sub, rowflip, colflip, vid, add, base, scale, o
                     z[k, :wm] = src
                 z[k, wm] = 0
             for l in range(n_bands):
+                if add and n_views == 1:
+                    # One view: the sum is one term, added to the base as it is gathered.
+                    m, al, b, ol = masks[0, i], a[0, l], base[l, i], out[l, i]
+                    z0, z1 = z[0, al:al + w], z[0, al + 1:al + 1 + w]
+                    if sub[0, l]:
+                        b0, b1 = c0[0, l], c1[0, l]
+                        for j in range(w):
+                            ol[j] = b[j] + scale * (m[j] * (b0 * z0[j] + b1 * z1[j]))
+                    else:
+                        for j in range(w):
+                            ol[j] = b[j] + scale * (m[j] * z0[j])
+                    continue
                 o = acc if add else out[l, i]
                 for k in range(n_views):
                     # Slices indexed by the bare loop counter (see _shift_add_row).

@@ -24,7 +24,7 @@ from numba import prange
 
 from recon.kernels import jit
 
-__all__ = ["chambolle", "tv_rows"]
+__all__ = ["chambolle", "tv_rows", "combine_tv_rows"]
 
 
 # The row loops index slices with the bare loop counter: an index such as ``j - 1`` makes
@@ -163,6 +163,31 @@ def chambolle(v, p, weight, s, theta, n_iter, isotropic, out):
                 _out_row(vb, p0, p1, q * w, w, weight, ob)
 
 
+@jit(refcount=False)
+def _tv_row(x, l, i, isotropic):
+    r""":math:`\sum_j \|(\nabla x)_{l,i,j}\|` in float64 (see :func:`tv_rows`)."""
+    h, w = x.shape[1], x.shape[2]
+    r = x[l, i]
+    r0, r1 = r[:w - 1], r[1:]
+    acc = 0.0
+    if i < h - 1:
+        d = x[l, i + 1]
+        d0 = d[:w - 1]
+        if isotropic:
+            for j in range(w - 1):
+                gy = d0[j] - r0[j]
+                gx = r1[j] - r0[j]
+                acc += np.sqrt(gy * gy + gx * gx)
+        else:
+            for j in range(w - 1):
+                acc += np.abs(d0[j] - r0[j]) + np.abs(r1[j] - r0[j])
+        acc += np.abs(d[w - 1] - r[w - 1])
+    else:
+        for j in range(w - 1):
+            acc += np.abs(r1[j] - r0[j])
+    return acc
+
+
 @jit(parallel=True)
 def tv_rows(x, isotropic, out):
     r"""Total variation of every row: ``out[l, i]`` :math:`=\sum_j \|(\nabla x)_{l,i,j}\|`.
@@ -180,23 +205,30 @@ def tv_rows(x, isotropic, out):
     """
     n_bands, h, w = x.shape
     for k in prange(n_bands * h):
-        l, i = k // h, k % h
-        r = x[l, i]
-        r0, r1 = r[:w - 1], r[1:]
-        acc = 0.0
-        if i < h - 1:
-            d = x[l, i + 1]
-            d0 = d[:w - 1]
-            if isotropic:
-                for j in range(w - 1):
-                    gy = d0[j] - r0[j]
-                    gx = r1[j] - r0[j]
-                    acc += np.sqrt(gy * gy + gx * gx)
-            else:
-                for j in range(w - 1):
-                    acc += np.abs(d0[j] - r0[j]) + np.abs(r1[j] - r0[j])
-            acc += np.abs(d[w - 1] - r[w - 1])
-        else:
-            for j in range(w - 1):
-                acc += np.abs(r1[j] - r0[j])
-        out[l, i] = acc
+        out[k // h, k % h] = _tv_row(x, k // h, k % h, isotropic)
+
+
+@jit(refcount=False)
+def _combine_row(a, u, b, v, c, w, out, l, i):
+    """Row ``i`` of band ``l``: ``out = a u + b v + c w``."""
+    o, uu, vv, ww = out[l, i], u[l, i], v[l, i], w[l, i]
+    for j in range(o.shape[0]):
+        o[j] = a * uu[j] + b * vv[j] + c * ww[j]
+
+
+@jit(parallel=True)
+def combine_tv_rows(a, u, b, v, c, w, out, isotropic, rows):
+    r"""``out`` :math:`= a u + b v + c w` and its total variation per row, in one pass.
+
+    TwIST's two-step candidate and the TV term of its objective: each row of ``out`` is
+    measured while it and the row below are still in cache, instead of reading the cube
+    back.  ``rows`` (L, H) float64 receives what :func:`tv_rows` would give for ``out``.
+    ``out`` must alias no input.  Bands run in parallel.
+    """
+    n_bands, h = out.shape[0], out.shape[1]
+    for l in prange(n_bands):
+        _combine_row(a, u, b, v, c, w, out, l, 0)
+        for i in range(1, h):
+            _combine_row(a, u, b, v, c, w, out, l, i)
+            rows[l, i - 1] = _tv_row(out, l, i - 1, isotropic)
+        rows[l, h - 1] = _tv_row(out, l, h - 1, isotropic)

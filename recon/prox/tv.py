@@ -304,10 +304,9 @@ class TVProx:
         self.isotropic = bool(isotropic)
         self.threads = _default_threads() if threads is None else max(1, int(threads))
         self.dual = np.zeros((2,) + shape, dtype=self.dtype)
-        self._g = np.zeros((2,) + shape, dtype=self.dtype)
-        self._y = np.empty(shape, dtype=self.dtype)
-        self._n = np.empty(shape, dtype=self.dtype)
-        self._sv = np.empty(shape, dtype=self.dtype)
+        # Work arrays of the NumPy path (five cubes), made on its first use: the kernel
+        # needs none.
+        self._work = None
         n_bands, band_bytes = shape[0], shape[1] * shape[2] * self.dtype.itemsize
         per_chunk = max(1, _CHUNK_BYTES // band_bytes)
         n_chunks = max(-(-n_bands // per_chunk), min(self.threads, n_bands))
@@ -367,6 +366,10 @@ class TVProx:
                 ktv.chambolle(np.ascontiguousarray(v), self.dual, t(weight), t(_STEP / weight),
                               t(_STEP), n_iter, self.isotropic, out)
             return out
+        if self._work is None:
+            shape = self.shape
+            self._work = (np.zeros((2,) + shape, dtype=self.dtype),
+                          *(np.empty(shape, dtype=self.dtype) for _ in range(3)))
         if len(self._chunks) == 1 or self.threads == 1:
             for sl in self._chunks:
                 self._run(sl, v, weight, n_iter, out)
@@ -379,8 +382,8 @@ class TVProx:
 
     def _run(self, sl: slice, v, weight, n_iter, out) -> None:
         """All dual iterations for the bands ``sl`` (bands are independent)."""
-        p, g, y, n, sv = (self.dual[:, sl], self._g[:, sl], self._y[sl], self._n[sl],
-                          self._sv[sl])
+        g, y, n, sv = self._work
+        p, g, y, n, sv = self.dual[:, sl], g[:, sl], y[sl], n[sl], sv[sl]
         v, out = v[sl], out[sl]
         py, px = p[0], p[1]
         # The dual components past the Neumann boundary must be zero (the gradient is zero

@@ -242,10 +242,9 @@ def twist(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float = 0.
                 ist_svd, ist_f = max_svd, None
             if twist_steps != 0:
                 # f_{t+1} = (1-alpha) f_{t-1} + (alpha-beta) f_t + beta Gamma(f_t)
-                _combine(c_m1, xm1, c_0, x, beta, ist, new, threads)
+                tv_new = _combine_tv(c_m1, xm1, c_0, x, beta, ist, new, isotropic, threads)
                 _combine(c_m1, resid_m1, c_0, resid, beta, resid_ist, resid_new, threads)
-                f_val = (0.5 * float(np.vdot(resid_new, resid_new))
-                         + tau * tv_norm(new, isotropic, threads))
+                f_val = 0.5 * float(np.vdot(resid_new, resid_new)) + tau * tv_new
                 if monotone and f_val > prev_f:
                     rejected += 1
                     twist_steps = 0
@@ -306,6 +305,22 @@ def twist(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float = 0.
 def _residual(op: LinearOperator, g: np.ndarray, x: np.ndarray, out: np.ndarray) -> None:
     """``out = g - H x``."""
     np.subtract(g, op.forward(x), out=out)
+
+
+def _combine_tv(a: float, u: np.ndarray, b: float, v: np.ndarray, c: float, w: np.ndarray,
+                out: np.ndarray, isotropic: bool, threads: int | None = None) -> float:
+    r"""``out = a*u + b*v + c*w`` and :math:`\mathrm{TV}(\mathrm{out})`, in one pass over the
+    cubes where the kernels run (:func:`recon.kernels.tv.combine_tv_rows`)."""
+    if kernels.usable(u, v, w, out) and all(x.flags.c_contiguous for x in (u, v, w, out)):
+        from recon.kernels import tv as ktv
+
+        t = out.dtype.type
+        rows = np.empty(out.shape[:2], dtype=np.float64)
+        with kernels.threads(threads):
+            ktv.combine_tv_rows(t(a), u, t(b), v, t(c), w, out, bool(isotropic), rows)
+        return float(rows.sum(axis=1).sum())
+    _combine(a, u, b, v, c, w, out, threads)
+    return tv_norm(out, isotropic, threads)
 
 
 #: Elements per block of :func:`_combine` (a block and its scratch stay in L2 cache).

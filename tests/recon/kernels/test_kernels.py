@@ -17,7 +17,7 @@ from recon.operators import (
 from recon.prox import TVProx, tv_norm_per_band
 from recon.solvers import solve
 from recon.solvers.base import axpy
-from recon.solvers.twist import _combine
+from recon.solvers.twist import _combine, _combine_tv
 
 pytestmark = pytest.mark.skipif(not kernels.enabled(), reason="Numba kernels switched off")
 
@@ -192,6 +192,19 @@ def test_combine_and_axpy_match_numpy():
     with kernels.numpy_only():
         axpy(u, 0.8, y2, out=y2)
     assert _rel(y1, y2) < RTOL32
+
+
+@pytest.mark.parametrize("isotropic", [True, False])
+@pytest.mark.parametrize("shape", [(3, 37, 41), (2, 1, 9), (2, 6, 1)])
+def test_combine_with_tv_matches_numpy(isotropic, shape):
+    rng = np.random.default_rng(12)
+    u, v, w = (rng.standard_normal(shape).astype(np.float32) for _ in range(3))
+    out, ref = np.empty_like(u), np.empty_like(u)
+    tv = _combine_tv(-0.67, u, 0.36, v, 3.3, w, out, isotropic)
+    with kernels.numpy_only():
+        tv_ref = _combine_tv(-0.67, u, 0.36, v, 3.3, w, ref, isotropic)
+    assert _rel(out, ref) < RTOL32
+    assert tv == pytest.approx(tv_ref, rel=RTOL32)
 
 
 # -- threads and whole solves ----------------------------------------------------------------
