@@ -34,6 +34,7 @@ Usage: python3 tools/bench_recon.py [--quick] [--out DIR] [--iters 50] [--solver
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import resource
@@ -161,15 +162,25 @@ def run_one(label, name, kw, op, g, truth, iters, repeat):
     return out
 
 
+def _kernels():
+    """:mod:`recon.kernels`, or None in a checkout from before it (for the "before" figures:
+    this script copied into such a checkout's tools/ runs against it)."""
+    try:
+        from recon import kernels
+    except ImportError:
+        return None
+    return kernels
+
+
 def first_call(name, op, g, truth, iters):
     """Time the process's first solve (Numba import, kernel loading or compiling, threads)."""
-    from recon import kernels
-
+    kernels = _kernels()
+    on = kernels is not None and kernels.enabled()
     t0 = time.perf_counter()
     res = solve(name, op, g, iters=iters, **SETTINGS[name])
     wall = time.perf_counter() - t0
     compiled = loaded = 0
-    if kernels.enabled():
+    if on:
         import recon.kernels.cassi as kc
         import recon.kernels.tv as kt
         import recon.kernels.vector as kv
@@ -180,11 +191,11 @@ def first_call(name, op, g, truth, iters):
                 if stats is not None and hasattr(stats, "cache_misses"):
                     compiled += sum(stats.cache_misses.values())
                     loaded += sum(stats.cache_hits.values())
-    how = ("NumPy paths (kernels off)" if not kernels.enabled() else
+    how = ("NumPy paths (kernels off or absent)" if not on else
            f"{compiled} kernel signature(s) compiled, {loaded} loaded from Numba's cache")
     print(f"  first call: {name} {wall:.3f} s ({how}; the solve itself {res.seconds:.3f} s)",
           flush=True)
-    return {"solver": name, "seconds": wall, "kernels": kernels.enabled(),
+    return {"solver": name, "seconds": wall, "kernels": on,
             "compiled": compiled, "loaded": loaded, "psnr": _psnr(res.x, truth)}
 
 
@@ -229,17 +240,19 @@ def main(argv=None):
     args = p.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     names = [s for s in args.solvers.split(",") if s]
-    from recon import kernels
-
-    report = {"iters": args.iters, "quick": args.quick, "configs": [], "kernels":
-              kernels.enabled(), "cpus": os.cpu_count(), "loadavg_start": os.getloadavg()}
+    kernels = _kernels()
+    on = kernels is not None and kernels.enabled()
+    report = {"iters": args.iters, "quick": args.quick, "configs": [], "kernels": on,
+              "cpus": os.cpu_count(), "loadavg_start": os.getloadavg()}
+    print(f"recon from {Path(sys.modules['recon'].__file__).parent}; fused kernels "
+          f"{'on' if on else 'off'}", flush=True)
     first = None
     summary = []
     for key in args.configs.split(","):
         title, op, truth = (config_a if key == "a" else config_b)(args.quick)
         # The measurement through the NumPy path, so that the first solve below is the first
         # use of the kernels in this process.
-        with kernels.numpy_only():
+        with kernels.numpy_only() if kernels is not None else contextlib.nullcontext():
             g = op.forward(truth)
         print(f"{title}: {op.ishape} -> {op.oshape}", flush=True)
         if first is None and names:
