@@ -11,7 +11,7 @@ from numba import prange
 
 from recon.kernels import jit
 
-__all__ = ["combine3", "axpy"]
+__all__ = ["combine3", "diff_dot", "extrapolate", "blocks"]
 
 #: Elements per parallel block.
 _BLOCK = 1 << 15
@@ -34,12 +34,33 @@ def combine3(a, u, b, v, c, w, out):
 
 
 @jit(parallel=True)
-def axpy(x, a, y, out):
-    r"""``out`` :math:`= x + a y` for flat (1-D, contiguous) arrays; ``out`` may alias."""
+def diff_dot(a, b, c, partial):
+    r"""Block sums of :math:`(a-b)\cdot(b-c)` into ``partial`` (float64, one per block of
+    ``_BLOCK`` elements; the caller sums them in order, so the result does not depend on the
+    threads).  FISTA's restart test without storing either difference."""
+    n = a.shape[0]
+    for blk in prange((n + _BLOCK - 1) // _BLOCK):
+        lo = blk * _BLOCK
+        hi = min(n, lo + _BLOCK)
+        aa, bb, cc = a[lo:hi], b[lo:hi], c[lo:hi]
+        acc = 0.0
+        for i in range(hi - lo):
+            acc += (aa[i] - bb[i]) * (bb[i] - cc[i])
+        partial[blk] = acc
+
+
+@jit(parallel=True)
+def extrapolate(f, f_prev, beta, out):
+    r"""``out`` :math:`= f + \beta (f - f_\mathrm{prev})` (FISTA's momentum step)."""
     n = out.shape[0]
     for blk in prange((n + _BLOCK - 1) // _BLOCK):
         lo = blk * _BLOCK
         hi = min(n, lo + _BLOCK)
-        o, xx, yy = out[lo:hi], x[lo:hi], y[lo:hi]
+        o, ff, pp = out[lo:hi], f[lo:hi], f_prev[lo:hi]
         for i in range(hi - lo):
-            o[i] = xx[i] + a * yy[i]
+            o[i] = ff[i] + beta * (ff[i] - pp[i])
+
+
+def blocks(n: int) -> int:
+    """Number of blocks (and of partial sums) for ``n`` elements."""
+    return (n + _BLOCK - 1) // _BLOCK

@@ -24,13 +24,12 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from recon import kernels
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
 from recon.prox.tv import tv_norm
 
 __all__ = ["SolverResult", "Callback", "IterationLoop", "check_problem", "objective",
-           "operator_norm_sq", "axpy"]
+           "operator_norm_sq"]
 
 
 @dataclass
@@ -130,25 +129,6 @@ def data_misfit(op: LinearOperator, g: np.ndarray, x: np.ndarray) -> tuple[float
     r = op.forward(x)
     np.subtract(g, r, out=r)
     return 0.5 * float(np.vdot(r, r)), r
-
-
-def axpy(x: np.ndarray, a: float, y: np.ndarray, out: np.ndarray,
-         threads: int | None = None) -> np.ndarray:
-    r"""``out`` :math:`= x + a y` for cubes of one dtype; ``out`` may be ``y`` (not ``x``).
-
-    One pass (:func:`recon.kernels.vector.axpy`) where the kernels are on, else two NumPy
-    passes.
-    """
-    if kernels.usable(x, y, out) and x.flags.c_contiguous and y.flags.c_contiguous \
-            and out.flags.c_contiguous:
-        from recon.kernels import vector as kvec
-
-        with kernels.threads(threads):
-            kvec.axpy(x.reshape(-1), out.dtype.type(a), y.reshape(-1), out.reshape(-1))
-        return out
-    np.multiply(y, a, out=out)
-    out += x
-    return out
 
 
 def objective(op: LinearOperator, g: np.ndarray, x: np.ndarray, tau: float,

@@ -27,11 +27,12 @@ import math
 
 import numpy as np
 
+from recon import kernels
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
 from recon.prox.tv import TVProx, tv_norm
-from recon.solvers.base import (IterationLoop, SolverResult, axpy, check_problem,
-                                data_misfit, operator_norm_sq)
+from recon.solvers.base import (IterationLoop, SolverResult, check_problem, data_misfit,
+                                operator_norm_sq)
 
 __all__ = ["fista_tv"]
 
@@ -109,20 +110,18 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float =
         # Adaptive restart (O'Donoghue & Candes 2015): momentum is dropped when the objective
         # rises or the step f - f_prev points against the generalised gradient z - f.  With
         # an inexact (warm-started) prox plain FISTA oscillates instead of converging.
-        np.subtract(z, f, out=step)
-        np.subtract(f, f_prev, out=z)
         obj = None
         if objective or restart:
             misfit, r_new = data_misfit(op, g, f)
             r_f_prev, r_f = r_f, r_new
             obj = misfit + tau * tv_norm(f, isotropic)
-        if restart and (float(np.vdot(step, z)) > 0 or obj > prev_obj):
+        if restart and (_restart_dot(z, f, f_prev, step, threads) > 0 or obj > prev_obj):
             t = 1.0
             restarts += 1
         prev_obj = obj if obj is not None else prev_obj
         t_next = 0.5 * (1.0 + math.sqrt(1.0 + 4.0 * t * t))
         b = (t - 1.0) / t_next
-        axpy(f, b, z, out=z, threads=threads)  # z = f + b (f - f_prev)
+        _extrapolate(f, f_prev, b, z, threads)  # z = f + b (f - f_prev)
         t = t_next
         r_z = None
         if r_f is not None and b == 0.0:
@@ -140,3 +139,35 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float =
     return SolverResult(x=f, iterations=loop.iterations, objective=history,
                         seconds=loop.seconds(), converged=loop.converged,
                         info={"lipschitz": lip, "tv_iters": int(tv_iters), "restarts": restarts})
+
+
+def _restart_dot(z: np.ndarray, f: np.ndarray, f_prev: np.ndarray, work: np.ndarray,
+                 threads: int | None) -> float:
+    r""":math:`\langle z - f, f - f_\mathrm{prev}\rangle`, the restart test's inner product:
+    one pass without storing the differences where the kernels run, else through ``work``."""
+    if kernels.usable(z, f, f_prev) and all(a.flags.c_contiguous for a in (z, f, f_prev)):
+        from recon.kernels import vector as kvec
+
+        partial = np.empty(kvec.blocks(z.size), dtype=np.float64)
+        with kernels.threads(threads):
+            kvec.diff_dot(z.reshape(-1), f.reshape(-1), f_prev.reshape(-1), partial)
+        return float(partial.sum())
+    np.subtract(z, f, out=work)
+    d = np.subtract(f, f_prev)
+    return float(np.vdot(work, d))
+
+
+def _extrapolate(f: np.ndarray, f_prev: np.ndarray, b: float, out: np.ndarray,
+                 threads: int | None) -> np.ndarray:
+    r"""``out`` :math:`= f + b (f - f_\mathrm{prev})`; ``out`` may be neither input."""
+    if kernels.usable(f, f_prev, out) and all(a.flags.c_contiguous for a in (f, f_prev, out)):
+        from recon.kernels import vector as kvec
+
+        with kernels.threads(threads):
+            kvec.extrapolate(f.reshape(-1), f_prev.reshape(-1), out.dtype.type(b),
+                             out.reshape(-1))
+        return out
+    np.subtract(f, f_prev, out=out)
+    out *= b
+    out += f
+    return out

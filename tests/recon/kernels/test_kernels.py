@@ -16,7 +16,7 @@ from recon.operators import (
 )
 from recon.prox import TVProx, tv_norm_per_band
 from recon.solvers import solve
-from recon.solvers.base import axpy
+from recon.solvers.fista_tv import _extrapolate, _restart_dot
 from recon.solvers.twist import _combine, _combine_tv
 
 pytestmark = pytest.mark.skipif(not kernels.enabled(), reason="Numba kernels switched off")
@@ -179,7 +179,7 @@ def test_adjoint_add_is_base_plus_scaled_adjoint(name, in_place):
 # -- vector updates --------------------------------------------------------------------------
 
 
-def test_combine_and_axpy_match_numpy():
+def test_vector_updates_match_numpy():
     rng = np.random.default_rng(9)
     u, v, w = (rng.standard_normal((3, 37, 41)).astype(np.float32) for _ in range(3))
     out, ref = np.empty_like(u), np.empty_like(u)
@@ -187,11 +187,16 @@ def test_combine_and_axpy_match_numpy():
     with kernels.numpy_only():
         _combine(-0.67, u, 0.36, v, 3.3, w, ref)
     assert _rel(out, ref) < RTOL32
-    y1, y2 = v.copy(), v.copy()
-    axpy(u, 0.8, y1, out=y1)
+    _extrapolate(u, v, 0.8, out, None)
     with kernels.numpy_only():
-        axpy(u, 0.8, y2, out=y2)
-    assert _rel(y1, y2) < RTOL32
+        _extrapolate(u, v, 0.8, ref, None)
+    assert _rel(out, ref) < RTOL32
+    # Longer than one block of the kernel, so that several partial sums are added.
+    a, b, c = (rng.standard_normal(100_003).astype(np.float32) for _ in range(3))
+    d = _restart_dot(a, b, c, np.empty_like(a), None)
+    with kernels.numpy_only():
+        d_ref = _restart_dot(a, b, c, np.empty_like(a), None)
+    assert d == pytest.approx(d_ref, rel=1e-5)
 
 
 @pytest.mark.parametrize("isotropic", [True, False])
