@@ -84,22 +84,45 @@ def numpy_only():
         _STATE.numpy_only = old
 
 
-@contextlib.contextmanager
-def threads(n: int | None):
-    """Run the kernels called in this block on at most ``n`` threads (``None``: all).
+_LAUNCH = threading.RLock()
 
-    Numba's thread count is per calling thread, so this does not affect other threads.
+
+def _layer_is_threadsafe(nb) -> bool:
+    """Whether Numba's threading layer takes concurrent launches from several threads.
+
+    OpenMP and TBB do; the fallback "workqueue" (no libgomp or TBB on the machine) does not
+    (it aborts the process), and before the first launch the layer is not chosen yet.
     """
-    nb = _numba() if n is not None else None
+    try:
+        return nb.threading_layer() != "workqueue"
+    except ValueError:
+        return False
+
+
+@contextlib.contextmanager
+def threads(n: int | None = None):
+    """Call kernels in this block: on at most ``n`` threads (``None``: all of Numba's).
+
+    Every kernel call goes through this block.  Numba's thread count is per calling thread,
+    so ``n`` does not affect other threads; where the threading layer is not thread-safe,
+    launches from several Python threads (a Dask worker's, say) take turns.
+    """
+    nb = _numba()
     if nb is None:
         yield
         return
+    lock = None if _layer_is_threadsafe(nb) else _LAUNCH
+    if lock is not None:
+        lock.acquire()
     old = nb.get_num_threads()
-    nb.set_num_threads(max(1, min(int(n), nb.config.NUMBA_NUM_THREADS)))
+    if n is not None:
+        nb.set_num_threads(max(1, min(int(n), nb.config.NUMBA_NUM_THREADS)))
     try:
         yield
     finally:
         nb.set_num_threads(old)
+        if lock is not None:
+            lock.release()
 
 
 def jit(parallel: bool = False, refcount: bool = True):

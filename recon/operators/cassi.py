@@ -148,7 +148,8 @@ class CassiOperator(LinearOperator):
 
             # The kernel overwrites the permutation views' rows; only warped views add.
             out = (np.empty if kp.views.size == self.n_views else np.zeros)(self.oshape, dt)
-            kcassi.forward(np.ascontiguousarray(x), *kp.arrays(dt), out)
+            with kernels.threads():
+                kcassi.forward(np.ascontiguousarray(x), *kp.arrays(dt), out)
         else:
             out = np.zeros(self.oshape, dtype=dt)
             self._forward_permutations(x, out)
@@ -244,7 +245,8 @@ class CassiOperator(LinearOperator):
             from recon.kernels import cassi as kcassi
 
             out = np.empty(self.ishape, dtype=dt)
-            kcassi.adjoint(y, *kp.arrays(dt), False, out, dt(1), out)
+            with kernels.threads():
+                kcassi.adjoint(y, *kp.arrays(dt), False, out, dt(1), out)
         else:
             out = self._adjoint_permutations(y)
         self._adjoint_warped(y, out)
@@ -267,8 +269,9 @@ class CassiOperator(LinearOperator):
         from recon.kernels import cassi as kcassi
 
         out = np.empty(self.ishape, dtype=dt) if out is None else out
-        kcassi.adjoint(np.ascontiguousarray(y, dtype=dt), *kp.arrays(dt), True, base,
-                       dt.type(scale), out)
+        with kernels.threads():
+            kcassi.adjoint(np.ascontiguousarray(y, dtype=dt), *kp.arrays(dt), True, base,
+                           dt.type(scale), out)
         return out
 
     def _adjoint_permutations(self, y):

@@ -242,3 +242,51 @@ def test_solvers_agree_with_the_numpy_path(name):
     assert fast.iterations == ref.iterations
     # 20 iterations of a nonlinear map amplify roundings a little, no more.
     assert _rel(fast.x, ref.x) < 1e-4
+
+
+def test_solves_from_several_threads_at_once():
+    # Kernels launched from two Python threads at the same time (a Dask worker's threads)
+    # give what they give one after the other.
+    from concurrent.futures import ThreadPoolExecutor
+
+    op = OPS["kaleido9-sub"]
+    rng = np.random.default_rng(13)
+    gs = [op.forward(rng.random(op.ishape).astype(np.float32)) for _ in range(4)]
+    alone = [solve("twist", op, g, iters=15, tau=0.05).x for g in gs]
+    with ThreadPoolExecutor(2) as ex:
+        together = list(ex.map(lambda g: solve("twist", op, g, iters=15, tau=0.05).x, gs))
+    for a, b in zip(alone, together):
+        assert np.array_equal(a, b)
+
+
+_CHILD = r"""
+import numpy as np
+from concurrent.futures import ThreadPoolExecutor
+from recon.operators import kaleidoscope_cassi
+from recon.solvers import solve
+rng = np.random.default_rng(0)
+op = kaleidoscope_cassi(rng.random((3, 16, 18)).astype(np.float32), 0.7 * np.arange(5), 3)
+gs = [op.forward(rng.random(op.ishape).astype(np.float32)) for _ in range(4)]
+alone = [solve("fista-tv", op, g, iters=10, tau=0.05).x for g in gs]
+with ThreadPoolExecutor(2) as ex:
+    together = list(ex.map(lambda g: solve("fista-tv", op, g, iters=10, tau=0.05).x, gs))
+assert all(np.array_equal(a, b) for a, b in zip(alone, together))
+import numba
+print(numba.threading_layer())
+"""
+
+
+def test_concurrent_launches_survive_the_workqueue_layer():
+    # Without OpenMP or TBB Numba falls back to its "workqueue" layer, which aborts the
+    # process when two threads launch kernels at once; recon.kernels makes them take turns.
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    env = dict(os.environ, NUMBA_THREADING_LAYER="workqueue")
+    root = Path(__file__).resolve().parents[3]
+    r = subprocess.run([sys.executable, "-c", _CHILD], env=env, cwd=root, capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.strip().splitlines()[-1] == "workqueue"
