@@ -11,7 +11,9 @@ forward reads the cube once).  Kernels run in float32, the solvers' precision; f
 Numba is optional: without it, or with ``KALEIDOSPEC_KERNELS=numpy`` in the environment, or
 inside :func:`numpy_only`, :func:`enabled` is False and every caller takes its NumPy path.
 Kernels are compiled on first use and cached on disk (``cache=True``, next to this package
-or in ``NUMBA_CACHE_DIR``), so only the first process on a machine pays the compilation.
+or in ``NUMBA_CACHE_DIR``), so only the first process on a machine pays the compilation.  The
+cache is keyed on each kernel module's source file: after changing the settings here
+(:data:`FASTMATH`, :func:`jit`), touch the kernel modules or clear their ``__pycache__``.
 
 Results never depend on the number of threads: work is split over bands or rows whose
 results are independent, and reductions are summed per row, then in a fixed order.
