@@ -115,7 +115,8 @@ def _out_row(vb, p0, p1, o, w, weight, ob):
 
 @jit(parallel=True)
 def chambolle(v, p, weight, s, theta, n_iter, isotropic, out):
-    r"""``n_iter`` Chambolle dual iterations on every band, then :math:`x = v-\lambda\,\mathrm{div}\,p`.
+    r"""``n_iter`` Chambolle dual iterations on every band, then
+    :math:`x = v-\lambda\,\mathrm{div}\,p`.
 
     Parameters
     ----------

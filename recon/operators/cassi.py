@@ -23,6 +23,8 @@ form (GAP-TV divides by it).
 
 The loops run over row strips, bands and views only (never pixels), in float32 with
 preallocated buffers; the comments above ``CassiOperator._forward`` explain their arrangement.
+Views whose map is a permutation run, in float32, in the fused kernels of
+:mod:`recon.kernels.cassi`, against which this NumPy code is the tested reference.
 """
 
 from __future__ import annotations
@@ -130,7 +132,10 @@ class CassiOperator(LinearOperator):
         super().__init__(cube_shape, (self.n_views, vshape[0], vshape[1] + extra))
 
     # -- operator --------------------------------------------------------------------------
-    # How the hot loops are arranged (all exact; only the order of operations changes):
+    # In float32 with Numba, the permutation views (identity or flips) run in one fused
+    # kernel (recon.kernels.cassi: a pass over the cube, rows in parallel); the NumPy code
+    # below is its reference and the path for float64 and resampling warps.
+    # How the NumPy loops are arranged (all exact; only the order of operations changes):
     # * Flat rows: a view image is written into the left Wv columns of a zero-padded (rows, Wm)
     #   buffer, so a shift by a columns is a 1-D offset of a in the flattened measurement (the
     #   zero padding keeps rows apart because a + 1 + Wv <= Wm).  Contiguous 1-D adds are

@@ -33,10 +33,11 @@ and the dual iterates with step :math:`\theta = 1/4`:
 
 Every band is independent.  With Numba, all dual iterations and the result are one fused pass
 over memory (:func:`recon.kernels.tv.chambolle`, bands in parallel); the NumPy path below
-processes all bands at once by whole-array operations and is the reference the kernel is tested
-against.  The dual can be kept between calls (:class:`TVProx`, or the ``dual=`` argument of :func:`prox_tv`):
-inside an outer solver the argument :math:`v` changes little from one iteration to the next, so a
-warm-started dual needs only one or two inner iterations.
+processes all bands at once by whole-array operations and is the reference the kernel is
+tested against.  The dual can be kept between calls (:class:`TVProx`, or the ``dual=``
+argument of :func:`prox_tv`): inside an outer solver the argument :math:`v` changes little
+from one iteration to the next, so a warm-started dual needs only one or two inner
+iterations.
 
 With the step 1/4, a warm-started dual is best used with an even number of iterations per
 call: an odd number leaves a period-2 oscillation of the dual when the input keeps changing

@@ -23,8 +23,8 @@ here :math:`10^{-2}`, see :data:`DEFAULT_LAM1`).
 
 Cost per iteration: one adjoint (the gradient step :math:`f_t + H^\top(g-Hf_t)/s`, fused by
 :meth:`~recon.operators.LinearOperator.adjoint_add`; a doubling of :math:`s` recomputes it),
-one prox and one forward, of :math:`\Gamma(f_t)`.  The candidate's residual needs no forward of its own: the weights
-:math:`(1-\alpha) + (\alpha-\beta) + \beta = 1`, so by linearity
+one prox and one forward, of :math:`\Gamma(f_t)`.  The candidate's residual needs no forward
+of its own: the weights :math:`(1-\alpha) + (\alpha-\beta) + \beta = 1`, so by linearity
 
 .. math::
 

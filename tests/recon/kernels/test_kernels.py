@@ -2,9 +2,9 @@
 
 The NumPy path is reached through the same public calls inside ``kernels.numpy_only()``, so
 these tests check the dispatch as well as the kernels.  The kernels exist in float32 only
-(float64 runs take the NumPy path), so every comparison here is in float32.  Sizes are small (the kernels compile
-once per dtype and are cached on disk; the sizes do not change that cost) but odd, with
-single rows and columns, so that every edge branch runs.
+(float64 runs take the NumPy path), so every comparison here is in float32.  Sizes are small
+(the kernels compile once and are cached on disk; the sizes do not change that cost) but odd,
+with single rows and columns, so that every edge branch runs.
 """
 
 import numpy as np
