@@ -30,7 +30,7 @@ import numpy as np
 __all__ = ["enabled", "usable", "numpy_only", "threads", "jit"]
 
 _STATE = threading.local()
-_NUMBA: list = []  # [numba module or None] once looked up: importing it costs ~0.3 s
+_NUMBA: list = []  # [numba module or None] once looked up: importing it costs ~0.2 s
 
 
 def _numba():
@@ -38,9 +38,9 @@ def _numba():
         # Threads that wait at the end of a parallel kernel sleep instead of spinning.  On a
         # machine whose cores are busy with other work a spinning thread burns the time slice
         # its peer needs: measured on 2 shared cores (load ~2.5), 50 GAP-TV iterations at
-        # 256x256x28 took 0.40-0.44 s passive against 0.91-1.34 s spinning, and the same
-        # 0.21-0.23 s either way on an idle machine.  Read by libgomp when Numba first starts
-        # its threads; a value set by the user is kept.
+        # 256x256x28 took 0.40-0.44 s passive against 0.91-1.34 s spinning, and about the
+        # same (0.21-0.28 s) either way while both cores were free.  Read by libgomp when
+        # Numba first starts its threads; a value set by the user is kept.
         os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
         try:
             import numba
