@@ -132,7 +132,7 @@ def gap_tv_temporal(op: LinearOperator, g: np.ndarray, *, ref: np.ndarray, mu: f
         y -= hf
         np.subtract(y, hf, out=res)
         res *= phi_inv
-        f += op.adjoint(res).astype(dtype, copy=False)
+        op.adjoint_add(res, f, out=f)
         prox(f, tau, tv_iters, warm=True, out=f)
         if mu > 0:
             temporal_prox(f, r, mu, out=f)

@@ -45,6 +45,27 @@ class LinearOperator:
             raise ValueError(f"{type(self).__name__}: input shape {y.shape} != {self.oshape}")
         return self._adjoint(y)
 
+    def adjoint_add(self, y: np.ndarray, base: np.ndarray, scale: float = 1.0,
+                    out: np.ndarray | None = None) -> np.ndarray:
+        r"""Return :math:`b + s\,A^\top y`, the gradient step of the solvers.
+
+        Parameters
+        ----------
+        y : ndarray, shape ``oshape``
+        base : ndarray, shape ``ishape``
+            :math:`b`; the result has its dtype.
+        scale : float
+            :math:`s`.
+        out : ndarray, shape ``ishape``, optional
+            Where to write the result; may be ``base``.
+
+        Operators with a fused kernel override this to add the adjoint as they compute it.
+        """
+        r = np.asarray(self.adjoint(y)).astype(base.dtype, copy=False)
+        if scale != 1.0:
+            r = np.multiply(r, scale, out=None if np.may_share_memory(r, y) else r)
+        return np.add(base, r, out=out)
+
     __call__ = forward
 
     @property

@@ -23,6 +23,8 @@ form (GAP-TV divides by it).
 
 The loops run over row strips, bands and views only (never pixels), in float32 with
 preallocated buffers; the comments above ``CassiOperator._forward`` explain their arrangement.
+Views whose map is a permutation run, in float32, in the fused kernels of
+:mod:`recon.kernels.cassi`, against which this NumPy code is the tested reference.
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ from typing import Sequence
 
 import numpy as np
 
+from recon import kernels
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
 from recon.operators.dispersion import (
@@ -124,11 +127,15 @@ class CassiOperator(LinearOperator):
         self.n_bands = n_bands
         self._plan = [_view_plan(v, row, extra) for v, row in zip(self.views, self.offsets)]
         self._masks = InPrecision([p.mask for p in self._plan])
+        self._kernel_plan = _KernelPlan(self._plan)
         self._row_norms = None
         super().__init__(cube_shape, (self.n_views, vshape[0], vshape[1] + extra))
 
     # -- operator --------------------------------------------------------------------------
-    # How the hot loops are arranged (all exact; only the order of operations changes):
+    # In float32 with Numba, the permutation views (identity or flips) run in one fused
+    # kernel (recon.kernels.cassi: a pass over the cube, rows in parallel); the NumPy code
+    # below is its reference and the path for float64 and resampling warps.
+    # How the NumPy loops are arranged (all exact; only the order of operations changes):
     # * Flat rows: a view image is written into the left Wv columns of a zero-padded (rows, Wm)
     #   buffer, so a shift by a columns is a 1-D offset of a in the flattened measurement (the
     #   zero padding keeps rows apart because a + 1 + Wv <= Wm).  Contiguous 1-D adds are
@@ -140,9 +147,26 @@ class CassiOperator(LinearOperator):
     def _forward(self, x):
         dt = work_dtype(x)
         x = x.astype(dt, copy=False)
+        kp = self._kernel_plan
+        if kp.views.size and kernels.usable(x):
+            from recon.kernels import cassi as kcassi
+
+            # The kernel overwrites the permutation views' rows; only warped views add.
+            out = (np.empty if kp.views.size == self.n_views else np.zeros)(self.oshape, dt)
+            with kernels.threads():
+                kcassi.forward(np.ascontiguousarray(x), *kp.arrays(dt), out)
+        else:
+            out = np.zeros(self.oshape, dtype=dt)
+            self._forward_permutations(x, out)
+        self._forward_warped(x, out)
+        return out
+
+    def _forward_permutations(self, x, out):
+        """The NumPy reference of :func:`recon.kernels.cassi.forward`: adds the permutation
+        views' measurements into ``out`` (zeros)."""
+        dt = out.dtype
         hv, wv = self.views[0].mask.shape
         wm = self.oshape[2]
-        out = np.zeros(self.oshape, dtype=dt)
         masks = self._masks(dt)
         perm = [k for k, p in enumerate(self._plan) if p.warp is None]
         # Where each view accumulates: its measurement, or a scratch image when it is flipped.
@@ -186,7 +210,15 @@ class CassiOperator(LinearOperator):
                 np.add(g[1:], qf[:-1], out=g[1:])
             if self._plan[k].flip:
                 np.copyto(out[k], acc[k][self._plan[k].flip])
-        # Resampled views.
+
+    def _forward_warped(self, x, out):
+        """Adds the measurements of the views with a resampling warp into ``out``."""
+        if all(p.warp is None for p in self._plan):
+            return
+        dt = out.dtype
+        hv, wv = self.views[0].mask.shape
+        wm = self.oshape[2]
+        masks = self._masks(dt)
         n = (hv - 1) * wm + wv
         pad = np.zeros((hv, wm), dtype=dt)
         body, flat = pad[:, :wv], pad.reshape(-1)[:n]
@@ -213,6 +245,44 @@ class CassiOperator(LinearOperator):
     def _adjoint(self, y):
         dt = work_dtype(y)
         y = np.ascontiguousarray(y, dtype=dt)
+        kp = self._kernel_plan
+        if kp.views.size and kernels.usable(y):
+            from recon.kernels import cassi as kcassi
+
+            out = np.empty(self.ishape, dtype=dt)
+            with kernels.threads():
+                kcassi.adjoint(y, *kp.arrays(dt), False, out, dt(1), out)
+        else:
+            out = self._adjoint_permutations(y)
+        self._adjoint_warped(y, out)
+        return out
+
+    def adjoint_add(self, y, base, scale=1.0, out=None):
+        r""":math:`b + s H^\top y` in one pass over the cube when every view is a permutation
+        (see :meth:`LinearOperator.adjoint_add <recon.operators.base.LinearOperator.adjoint_add>`).
+        """
+        kp = self._kernel_plan
+        base = np.asarray(base)
+        dt = base.dtype
+        if not (kp.views.size == self.n_views and kernels.usable(base)
+                and base.shape == self.ishape and base.flags.c_contiguous
+                and (out is None or (out.dtype == dt and out.flags.c_contiguous))):
+            return super().adjoint_add(y, base, scale, out)
+        y = np.asarray(y)
+        if y.shape != self.oshape:
+            raise ValueError(f"{type(self).__name__}: input shape {y.shape} != {self.oshape}")
+        from recon.kernels import cassi as kcassi
+
+        out = np.empty(self.ishape, dtype=dt) if out is None else out
+        with kernels.threads():
+            kcassi.adjoint(np.ascontiguousarray(y, dtype=dt), *kp.arrays(dt), True, base,
+                           dt.type(scale), out)
+        return out
+
+    def _adjoint_permutations(self, y):
+        """The NumPy reference of :func:`recon.kernels.cassi.adjoint`: the permutation
+        views' part of the adjoint (zeros without such views)."""
+        dt = y.dtype
         hv, wv = self.views[0].mask.shape
         wm = self.oshape[2]
         masks = self._masks(dt)
@@ -256,7 +326,16 @@ class CassiOperator(LinearOperator):
                     else:
                         np.multiply(z, ms[i], out=b)
                         np.add(o, b, out=o)
-        # Resampled views.
+        return out
+
+    def _adjoint_warped(self, y, out):
+        """Adds the adjoint of the views with a resampling warp into ``out``."""
+        if all(p.warp is None for p in self._plan):
+            return out
+        dt = out.dtype
+        hv, wv = self.views[0].mask.shape
+        wm = self.oshape[2]
+        masks = self._masks(dt)
         n = (hv - 1) * wm + wv
         zflat = np.zeros(hv * wm, dtype=dt)
         z, zn = zflat.reshape(hv, wm)[:, :wv], zflat[:n]
@@ -314,6 +393,36 @@ class _Plan:
     subpixel: bool
     flip: tuple
     warp: Warp | None
+
+
+class _KernelPlan:
+    """The permutation views of a plan as the arrays :mod:`recon.kernels.cassi` takes.
+
+    ``views`` holds the indices of the views without a resampling warp; ``arrays(dtype)``
+    returns ``(masks, a, c0, c1, sub, rowflip, colflip, views)`` with masks and weights in
+    ``dtype`` (made on first use per precision, then kept).
+    """
+
+    def __init__(self, plan: list[_Plan]):
+        ids = [k for k, p in enumerate(plan) if p.warp is None]
+        self.views = np.array(ids, dtype=np.int64)
+        self._plan = [plan[k] for k in ids]
+        self._cache: dict = {}
+
+    def arrays(self, dtype):
+        dtype = np.dtype(dtype)
+        if dtype not in self._cache:
+            plans = self._plan
+            parts = np.array([[p for p in pl.parts] for pl in plans], dtype=np.float64)
+            a = np.ascontiguousarray(parts[..., 0].astype(np.int64))
+            t = parts[..., 1]
+            self._cache[dtype] = (
+                np.ascontiguousarray(np.stack([pl.mask for pl in plans]), dtype=dtype),
+                a, (1.0 - t).astype(dtype), t.astype(dtype), t != 0.0,
+                np.array([bool(pl.flip) and pl.flip[0] != slice(None) for pl in plans]),
+                np.array([bool(pl.flip) and pl.flip[1] != slice(None) for pl in plans]),
+                self.views)
+        return self._cache[dtype]
 
 
 def _view_plan(view: View, offsets: np.ndarray, extra: int) -> _Plan:

@@ -31,10 +31,13 @@ and the dual iterates with step :math:`\theta = 1/4`:
 - anisotropic (Chambolle 2005 projected gradient)
   :math:`p \leftarrow \Pi_{[-1,1]}\bigl(p - (\theta/\lambda)\nabla x\bigr)`.
 
-Every band is independent; all bands are processed at once by whole-array NumPy operations.  The
-dual can be kept between calls (:class:`TVProx`, or the ``dual=`` argument of :func:`prox_tv`):
-inside an outer solver the argument :math:`v` changes little from one iteration to the next, so a
-warm-started dual needs only one or two inner iterations.
+Every band is independent.  With Numba, all dual iterations and the result are one fused pass
+over memory (:func:`recon.kernels.tv.chambolle`, bands in parallel); the NumPy path below
+processes all bands at once by whole-array operations and is the reference the kernel is
+tested against.  The dual can be kept between calls (:class:`TVProx`, or the ``dual=``
+argument of :func:`prox_tv`): inside an outer solver the argument :math:`v` changes little
+from one iteration to the next, so a warm-started dual needs only one or two inner
+iterations.
 
 With the step 1/4, a warm-started dual is best used with an even number of iterations per
 call: an odd number leaves a period-2 oscillation of the dual when the input keeps changing
@@ -52,6 +55,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from recon import kernels
 from recon.errors import InputError
 
 __all__ = ["gradient", "divergence", "tv_norm", "tv_norm_per_band", "prox_tv", "TVProx",
@@ -148,6 +152,13 @@ def tv_norm_per_band(x: np.ndarray, isotropic: bool = True,
     """
     x = np.ascontiguousarray(_check_cube(x))
     n_bands, h, w = x.shape
+    if kernels.usable(x):
+        from recon.kernels import tv as ktv
+
+        row_tv = np.empty((n_bands, h), dtype=np.float64)
+        with kernels.threads(threads):
+            ktv.tv_rows(x, bool(isotropic), row_tv)
+        return row_tv.sum(axis=1)
     rows = x.reshape(n_bands * h, w)
     row_tv = np.empty(n_bands * h, dtype=np.float64)
     strip = max(1, _TV_STRIP_BYTES // max(1, w * x.itemsize))
@@ -294,10 +305,9 @@ class TVProx:
         self.isotropic = bool(isotropic)
         self.threads = _default_threads() if threads is None else max(1, int(threads))
         self.dual = np.zeros((2,) + shape, dtype=self.dtype)
-        self._g = np.zeros((2,) + shape, dtype=self.dtype)
-        self._y = np.empty(shape, dtype=self.dtype)
-        self._n = np.empty(shape, dtype=self.dtype)
-        self._sv = np.empty(shape, dtype=self.dtype)
+        # Work arrays of the NumPy path (five cubes), made on its first use: the kernel
+        # needs none.
+        self._work = None
         n_bands, band_bytes = shape[0], shape[1] * shape[2] * self.dtype.itemsize
         per_chunk = max(1, _CHUNK_BYTES // band_bytes)
         n_chunks = max(-(-n_bands // per_chunk), min(self.threads, n_bands))
@@ -348,6 +358,19 @@ class TVProx:
             self.reset()
         if v.dtype != self.dtype:
             v = v.astype(self.dtype)
+        if kernels.usable(v, out, self.dual) and out.flags.c_contiguous \
+                and self.dual.flags.c_contiguous:
+            from recon.kernels import tv as ktv
+
+            t = self.dtype.type
+            with kernels.threads(self.threads):
+                ktv.chambolle(np.ascontiguousarray(v), self.dual, t(weight), t(_STEP / weight),
+                              t(_STEP), n_iter, self.isotropic, out)
+            return out
+        if self._work is None:
+            shape = self.shape
+            self._work = (np.zeros((2,) + shape, dtype=self.dtype),
+                          *(np.empty(shape, dtype=self.dtype) for _ in range(3)))
         if len(self._chunks) == 1 or self.threads == 1:
             for sl in self._chunks:
                 self._run(sl, v, weight, n_iter, out)
@@ -360,8 +383,8 @@ class TVProx:
 
     def _run(self, sl: slice, v, weight, n_iter, out) -> None:
         """All dual iterations for the bands ``sl`` (bands are independent)."""
-        p, g, y, n, sv = (self.dual[:, sl], self._g[:, sl], self._y[sl], self._n[sl],
-                          self._sv[sl])
+        g, y, n, sv = self._work
+        p, g, y, n, sv = self.dual[:, sl], g[:, sl], y[sl], n[sl], sv[sl]
         v, out = v[sl], out[sl]
         py, px = p[0], p[1]
         # The dual components past the Neumann boundary must be zero (the gradient is zero

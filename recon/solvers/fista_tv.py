@@ -27,6 +27,7 @@ import math
 
 import numpy as np
 
+from recon import kernels
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
 from recon.prox.tv import TVProx, tv_norm
@@ -94,31 +95,41 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float =
     restarts = 0
     prev_obj = math.inf
     history: list[float] = []
+    step = np.empty_like(f)
+    # Residuals g - H(.) of f_k and f_{k-1} (computed for the restart test) give that of
+    # z_{k+1} = f_k + b (f_k - f_{k-1}) by linearity: g - Hz = r_k + b (r_k - r_{k-1}).  So
+    # with the restart on, one forward per iteration instead of two.
+    r_f = r_f_prev = r_z = None
     for it in range(1, iters + 1):
-        r = op.forward(z)
-        np.subtract(g, r, out=r)
-        step = op.adjoint(r).astype(dtype, copy=False)
-        step *= 1.0 / lip
-        step += z
+        if r_z is None:
+            r_z = op.forward(z)
+            np.subtract(g, r_z, out=r_z)
+        op.adjoint_add(r_z, z, 1.0 / lip, out=step)
         f_prev, f = f, f_prev
         prox(step, tau / lip, tv_iters, warm=warm_dual, out=f)
         # Adaptive restart (O'Donoghue & Candes 2015): momentum is dropped when the objective
         # rises or the step f - f_prev points against the generalised gradient z - f.  With
         # an inexact (warm-started) prox plain FISTA oscillates instead of converging.
-        np.subtract(z, f, out=step)
-        np.subtract(f, f_prev, out=z)
         obj = None
         if objective or restart:
-            obj = data_misfit(op, g, f)[0] + tau * tv_norm(f, isotropic)
-        if restart and (float(np.vdot(step, z)) > 0 or obj > prev_obj):
+            misfit, r_new = data_misfit(op, g, f)
+            r_f_prev, r_f = r_f, r_new
+            obj = misfit + tau * tv_norm(f, isotropic)
+        if restart and (_restart_dot(z, f, f_prev, step, threads) > 0 or obj > prev_obj):
             t = 1.0
             restarts += 1
         prev_obj = obj if obj is not None else prev_obj
         t_next = 0.5 * (1.0 + math.sqrt(1.0 + 4.0 * t * t))
-        # z = f + ((t-1)/t_next) (f - f_prev)
-        z *= (t - 1.0) / t_next
-        z += f
+        b = (t - 1.0) / t_next
+        _extrapolate(f, f_prev, b, z, threads)  # z = f + b (f - f_prev)
         t = t_next
+        r_z = None
+        if r_f is not None and b == 0.0:
+            r_z = r_f.copy()
+        elif r_f is not None and r_f_prev is not None:
+            r_z = np.subtract(r_f, r_f_prev)
+            r_z *= b
+            r_z += r_f
         if objective:
             history.append(obj)
         change = loop.relative_change(f, f_prev, step) if loop.needs_change else None
@@ -128,3 +139,35 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float =
     return SolverResult(x=f, iterations=loop.iterations, objective=history,
                         seconds=loop.seconds(), converged=loop.converged,
                         info={"lipschitz": lip, "tv_iters": int(tv_iters), "restarts": restarts})
+
+
+def _restart_dot(z: np.ndarray, f: np.ndarray, f_prev: np.ndarray, work: np.ndarray,
+                 threads: int | None) -> float:
+    r""":math:`\langle z - f, f - f_\mathrm{prev}\rangle`, the restart test's inner product:
+    one pass without storing the differences where the kernels run, else through ``work``."""
+    if kernels.usable(z, f, f_prev) and all(a.flags.c_contiguous for a in (z, f, f_prev)):
+        from recon.kernels import vector as kvec
+
+        partial = np.empty(kvec.blocks(z.size), dtype=np.float64)
+        with kernels.threads(threads):
+            kvec.diff_dot(z.reshape(-1), f.reshape(-1), f_prev.reshape(-1), partial)
+        return float(partial.sum())
+    np.subtract(z, f, out=work)
+    d = np.subtract(f, f_prev)
+    return float(np.vdot(work, d))
+
+
+def _extrapolate(f: np.ndarray, f_prev: np.ndarray, b: float, out: np.ndarray,
+                 threads: int | None) -> np.ndarray:
+    r"""``out`` :math:`= f + b (f - f_\mathrm{prev})`; ``out`` may be neither input."""
+    if kernels.usable(f, f_prev, out) and all(a.flags.c_contiguous for a in (f, f_prev, out)):
+        from recon.kernels import vector as kvec
+
+        with kernels.threads(threads):
+            kvec.extrapolate(f.reshape(-1), f_prev.reshape(-1), out.dtype.type(b),
+                             out.reshape(-1))
+        return out
+    np.subtract(f, f_prev, out=out)
+    out *= b
+    out += f
+    return out

@@ -151,7 +151,7 @@ def gap_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float = 0
         else:
             np.subtract(g, hf, out=r)
         r *= phi_inv
-        f += op.adjoint(r).astype(dtype, copy=False)
+        op.adjoint_add(r, f, out=f)
         prox(f, tau, tv_iters, warm=warm_dual, out=f)
         hf = op.forward(f).astype(dtype, copy=False)
         obj = None

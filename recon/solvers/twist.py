@@ -21,9 +21,10 @@ with, for the spectrum of :math:`H^\top H/s` in :math:`[\lambda_1, 1]`,
 :math:`\beta = 2\alpha/(\lambda_1+1)` (the authors' default is :math:`\lambda_1 = 10^{-4}`;
 here :math:`10^{-2}`, see :data:`DEFAULT_LAM1`).
 
-Cost per iteration: one adjoint (the gradient), one prox and one forward, of
-:math:`\Gamma(f_t)`.  The candidate's residual needs no forward of its own: the weights
-:math:`(1-\alpha) + (\alpha-\beta) + \beta = 1`, so by linearity
+Cost per iteration: one adjoint (the gradient step :math:`f_t + H^\top(g-Hf_t)/s`, fused by
+:meth:`~recon.operators.LinearOperator.adjoint_add`; a doubling of :math:`s` recomputes it),
+one prox and one forward, of :math:`\Gamma(f_t)`.  The candidate's residual needs no forward
+of its own: the weights :math:`(1-\alpha) + (\alpha-\beta) + \beta = 1`, so by linearity
 
 .. math::
 
@@ -46,6 +47,7 @@ import math
 
 import numpy as np
 
+from recon import kernels
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
 from recon.prox.tv import TVProx, parallel_spans, tv_norm
@@ -226,24 +228,23 @@ def twist(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float = 0.
     c_m1, c_0 = 1.0 - alpha, alpha - beta
 
     for it in range(1, iters + 1):
-        grad = op.adjoint(resid).astype(dtype, copy=False)
         ist_svd = None       # max_svd for which `ist` holds Gamma(x)
         ist_f = None         # objective at `ist`, once computed
         tries = refined = 0
         svd_at_start = max_svd
         while True:
             if ist_svd != max_svd:
-                np.multiply(grad, 1.0 / max_svd, out=vin)
-                vin += x
+                # The gradient step, fused with the adjoint where the operator can; a
+                # doubled s (rare) recomputes the adjoint rather than keeping it.
+                op.adjoint_add(resid, x, 1.0 / max_svd, out=vin)
                 prox(vin, tau / max_svd, tv_iters, warm=warm_dual, out=ist)
                 _residual(op, g, ist, resid_ist)
                 ist_svd, ist_f = max_svd, None
             if twist_steps != 0:
                 # f_{t+1} = (1-alpha) f_{t-1} + (alpha-beta) f_t + beta Gamma(f_t)
-                _combine(c_m1, xm1, c_0, x, beta, ist, new, threads)
+                tv_new = _combine_tv(c_m1, xm1, c_0, x, beta, ist, new, isotropic, threads)
                 _combine(c_m1, resid_m1, c_0, resid, beta, resid_ist, resid_new, threads)
-                f_val = (0.5 * float(np.vdot(resid_new, resid_new))
-                         + tau * tv_norm(new, isotropic, threads))
+                f_val = 0.5 * float(np.vdot(resid_new, resid_new)) + tau * tv_new
                 if monotone and f_val > prev_f:
                     rejected += 1
                     twist_steps = 0
@@ -306,15 +307,39 @@ def _residual(op: LinearOperator, g: np.ndarray, x: np.ndarray, out: np.ndarray)
     np.subtract(g, op.forward(x), out=out)
 
 
+def _combine_tv(a: float, u: np.ndarray, b: float, v: np.ndarray, c: float, w: np.ndarray,
+                out: np.ndarray, isotropic: bool, threads: int | None = None) -> float:
+    r"""``out = a*u + b*v + c*w`` and :math:`\mathrm{TV}(\mathrm{out})`, in one pass over the
+    cubes where the kernels run (:func:`recon.kernels.tv.combine_tv_rows`)."""
+    if kernels.usable(u, v, w, out) and all(x.flags.c_contiguous for x in (u, v, w, out)):
+        from recon.kernels import tv as ktv
+
+        t = out.dtype.type
+        rows = np.empty(out.shape[:2], dtype=np.float64)
+        with kernels.threads(threads):
+            ktv.combine_tv_rows(t(a), u, t(b), v, t(c), w, out, bool(isotropic), rows)
+        return float(rows.sum(axis=1).sum())
+    _combine(a, u, b, v, c, w, out, threads)
+    return tv_norm(out, isotropic, threads)
+
+
 #: Elements per block of :func:`_combine` (a block and its scratch stay in L2 cache).
 _BLOCK = 1 << 16
 
 
 def _combine(a: float, u: np.ndarray, b: float, v: np.ndarray, c: float, w: np.ndarray,
              out: np.ndarray, threads: int | None = None) -> np.ndarray:
-    """``out = a*u + b*v + c*w`` block by block: no array-sized temporaries, and each block
-    is read once from memory (``out`` must alias none of the inputs); threaded over spans."""
+    """``out = a*u + b*v + c*w`` in one pass (:func:`recon.kernels.vector.combine3`), or with
+    NumPy block by block: no array-sized temporaries, and each block is read once from memory
+    (``out`` must alias none of the inputs); threaded over spans."""
     uf, vf, wf, of = u.reshape(-1), v.reshape(-1), w.reshape(-1), out.reshape(-1)
+    if kernels.usable(u, v, w, out):
+        from recon.kernels import vector as kvec
+
+        t = out.dtype.type
+        with kernels.threads(threads):
+            kvec.combine3(t(a), uf, t(b), vf, t(c), wf, of)
+        return out
 
     def run(lo, hi):
         tmp = np.empty(min(_BLOCK, hi - lo), dtype=out.dtype)

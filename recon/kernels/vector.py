@@ -1,0 +1,66 @@
+r"""Element-wise combinations of whole cubes in one pass (the solvers' vector updates).
+
+NumPy evaluates :math:`a u + b v + c w` as five passes with a temporary; these kernels read
+each input once and write the output once, split into contiguous blocks over threads (each
+element is computed the same way whatever the split, so results do not depend on threads).
+"""
+
+from __future__ import annotations
+
+from numba import prange
+
+from recon.kernels import jit
+
+__all__ = ["combine3", "diff_dot", "extrapolate", "blocks"]
+
+#: Elements per parallel block.
+_BLOCK = 1 << 15
+
+
+@jit(parallel=True)
+def combine3(a, u, b, v, c, w, out):
+    r"""``out`` :math:`= a u + b v + c w` for flat (1-D, contiguous) arrays.
+
+    ``out`` may alias any input (each element is read before it is written).  The weights
+    are given in the arrays' precision.
+    """
+    n = out.shape[0]
+    for blk in prange((n + _BLOCK - 1) // _BLOCK):
+        lo = blk * _BLOCK
+        hi = min(n, lo + _BLOCK)
+        o, uu, vv, ww = out[lo:hi], u[lo:hi], v[lo:hi], w[lo:hi]
+        for i in range(hi - lo):
+            o[i] = a * uu[i] + b * vv[i] + c * ww[i]
+
+
+@jit(parallel=True)
+def diff_dot(a, b, c, partial):
+    r"""Block sums of :math:`(a-b)\cdot(b-c)` into ``partial`` (float64, one per block of
+    ``_BLOCK`` elements; the caller sums them in order, so the result does not depend on the
+    threads).  FISTA's restart test without storing either difference."""
+    n = a.shape[0]
+    for blk in prange((n + _BLOCK - 1) // _BLOCK):
+        lo = blk * _BLOCK
+        hi = min(n, lo + _BLOCK)
+        aa, bb, cc = a[lo:hi], b[lo:hi], c[lo:hi]
+        acc = 0.0
+        for i in range(hi - lo):
+            acc += (aa[i] - bb[i]) * (bb[i] - cc[i])
+        partial[blk] = acc
+
+
+@jit(parallel=True)
+def extrapolate(f, f_prev, beta, out):
+    r"""``out`` :math:`= f + \beta (f - f_\mathrm{prev})` (FISTA's momentum step)."""
+    n = out.shape[0]
+    for blk in prange((n + _BLOCK - 1) // _BLOCK):
+        lo = blk * _BLOCK
+        hi = min(n, lo + _BLOCK)
+        o, ff, pp = out[lo:hi], f[lo:hi], f_prev[lo:hi]
+        for i in range(hi - lo):
+            o[i] = ff[i] + beta * (ff[i] - pp[i])
+
+
+def blocks(n: int) -> int:
+    """Number of blocks (and of partial sums) for ``n`` elements."""
+    return (n + _BLOCK - 1) // _BLOCK

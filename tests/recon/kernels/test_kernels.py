@@ -1,0 +1,292 @@
+"""Every fused kernel against the NumPy path it replaces (float32, tight tolerances).
+
+The NumPy path is reached through the same public calls inside ``kernels.numpy_only()``, so
+these tests check the dispatch as well as the kernels.  The kernels exist in float32 only
+(float64 runs take the NumPy path), so every comparison here is in float32.  Sizes are small
+(the kernels compile once and are cached on disk; the sizes do not change that cost) but odd,
+with single rows and columns, so that every edge branch runs.
+"""
+
+import numpy as np
+import pytest
+
+from recon import kernels
+from recon.operators import (
+    CassiOperator, Translate, View, dot_test, kaleidoscope_cassi, standard_cassi,
+)
+from recon.prox import TVProx, tv_norm_per_band
+from recon.solvers import solve
+from recon.solvers.fista_tv import _extrapolate, _restart_dot
+from recon.solvers.twist import _combine, _combine_tv
+
+pytestmark = pytest.mark.skipif(not kernels.enabled(), reason="Numba kernels switched off")
+
+# float32 rounding is 6e-8; the kernels reorder sums and contract multiply-adds, so they
+# differ from NumPy by a few roundings, never more.
+RTOL32 = 1e-6
+
+
+def _rel(a, b):
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    return float(np.abs(a - b).max() / max(np.abs(b).max(), 1e-30))
+
+
+# -- the switch ----------------------------------------------------------------------------
+
+
+def test_switches(monkeypatch):
+    assert kernels.enabled()
+    with kernels.numpy_only():
+        assert not kernels.enabled()
+        with kernels.numpy_only():
+            assert not kernels.enabled()
+        assert not kernels.enabled()
+    assert kernels.enabled()
+    monkeypatch.setenv("KALEIDOSPEC_KERNELS", "numpy")
+    assert not kernels.enabled()
+
+
+# -- TV ------------------------------------------------------------------------------------
+
+SHAPES = [(3, 7, 9), (2, 1, 6), (2, 5, 1), (1, 1, 1), (4, 16, 13)]
+
+
+def _prox_pair(shape, dtype, isotropic, n_iter, warm, seed, alias=False):
+    rng = np.random.default_rng(seed)
+    v = rng.standard_normal(shape).astype(dtype)
+    dual = rng.uniform(-0.7, 0.7, (2,) + shape).astype(dtype)
+    res = []
+    for fast in (True, False):
+        prox = TVProx(shape, dtype, isotropic, threads=2)
+        prox.dual[:] = dual
+        vin = v.copy()
+        with kernels.numpy_only() if not fast else _nothing():
+            x = prox(vin, 0.3, n_iter, warm=warm, out=vin if alias else None)
+        res.append((x, prox.dual.copy()))
+    return res
+
+
+class _nothing:
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+@pytest.mark.parametrize("isotropic", [True, False])
+@pytest.mark.parametrize("n_iter", [0, 1, 2, 5])
+def test_chambolle_prox_matches_numpy(shape, isotropic, n_iter):
+    (x, p), (xr, pr) = _prox_pair(shape, np.float32, isotropic, n_iter, True, 1)
+    assert x.dtype == np.float32
+    assert _rel(x, xr) < RTOL32 * (1 + n_iter)
+    assert _rel(p, pr) < RTOL32 * (1 + n_iter)
+
+
+@pytest.mark.parametrize("isotropic", [True, False])
+def test_chambolle_prox_cold_and_in_place(isotropic):
+    (x, p), (xr, pr) = _prox_pair((3, 11, 8), np.float32, isotropic, 4, False, 2, alias=True)
+    assert _rel(x, xr) < 5 * RTOL32 and _rel(p, pr) < 5 * RTOL32
+
+
+def test_kernels_are_float32_only():
+    # float64 (precision checks) takes the NumPy path; the kernels exist in float32 only.
+    assert kernels.usable(np.zeros(2, np.float32))
+    assert not kernels.usable(np.zeros(2, np.float32), np.zeros(2))
+
+
+def test_chambolle_prox_many_iterations_converge_alike():
+    # 200 iterations in one wavefront pass against 200 NumPy iterations: rounding does not
+    # build up into a different answer.
+    (x, _), (xr, _) = _prox_pair((2, 20, 17), np.float32, True, 200, False, 3)
+    assert _rel(x, xr) < 1e-5
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+@pytest.mark.parametrize("isotropic", [True, False])
+def test_tv_norm_matches_numpy(shape, isotropic):
+    x = np.random.default_rng(4).standard_normal(shape).astype(np.float32)
+    fast = tv_norm_per_band(x, isotropic)
+    with kernels.numpy_only():
+        ref = tv_norm_per_band(x, isotropic)
+    assert fast.dtype == np.float64
+    np.testing.assert_allclose(fast, ref, rtol=RTOL32, atol=1e-6)
+
+
+# -- CASSI operators -------------------------------------------------------------------------
+
+
+def _operators():
+    rng = np.random.default_rng(5)
+    return {
+        "standard-int": standard_cassi((rng.random((13, 17)) > 0.5).astype(np.float32), 2, 5),
+        "standard-neg-sub": standard_cassi(rng.random((13, 17)).astype(np.float32), -1.3, 5),
+        "kaleido9-sub": kaleidoscope_cassi(rng.random((9, 11, 14)).astype(np.float32),
+                                           0.9 * np.arange(6), 9),
+        "kaleido5-no-inversion": kaleidoscope_cassi(rng.random((9, 11, 14)), 2.0 * np.arange(6),
+                                                    5, inversion=False),
+        "per-view-offsets": kaleidoscope_cassi(rng.random((3, 8, 10)),
+                                               rng.uniform(-3, 3, (3, 4)), 3),
+        "one-band": standard_cassi(rng.random((6, 7)), 1.5, 1),
+        "one-column": kaleidoscope_cassi(rng.random((3, 6, 1)), 0.5 * np.arange(3), 3),
+        "with-warped-view": CassiOperator([
+            View(rng.random((11, 14)), 0.7 * np.arange(4)),
+            View(rng.random((11, 14)), 0.5 * np.arange(4), Translate(0.3, 1.2))]),
+    }
+
+
+OPS = _operators()
+
+
+@pytest.mark.parametrize("name", sorted(OPS))
+def test_cassi_forward_and_adjoint_match_numpy(name):
+    op = OPS[name]
+    rng = np.random.default_rng(6)
+    x = rng.standard_normal(op.ishape).astype(np.float32)
+    y = rng.standard_normal(op.oshape).astype(np.float32)
+    fwd, adj = op.forward(x), op.adjoint(y)
+    with kernels.numpy_only():
+        fwd_ref, adj_ref = op.forward(x), op.adjoint(y)
+    assert fwd.dtype == adj.dtype == np.float32
+    assert _rel(fwd, fwd_ref) < RTOL32
+    assert _rel(adj, adj_ref) < RTOL32
+
+
+@pytest.mark.parametrize("name", sorted(OPS))
+def test_cassi_kernels_have_exact_adjoints(name):
+    # In float32, so that the kernels run: the mismatch is float32 rounding of the sums.
+    assert dot_test(OPS[name], np.random.default_rng(7), dtype=np.float32) < 1e-6
+
+
+@pytest.mark.parametrize("name", sorted(OPS))
+@pytest.mark.parametrize("in_place", [False, True])
+def test_adjoint_add_is_base_plus_scaled_adjoint(name, in_place):
+    op = OPS[name]
+    rng = np.random.default_rng(8)
+    base = rng.standard_normal(op.ishape).astype(np.float32)
+    y = rng.standard_normal(op.oshape).astype(np.float32)
+    want = base + np.float32(0.37) * op.adjoint(y)
+    b = base.copy()
+    got = op.adjoint_add(y, b, 0.37, out=b if in_place else None)
+    assert got.dtype == np.float32 and (got is b) == in_place
+    assert _rel(got, want) < RTOL32
+    with kernels.numpy_only():
+        ref = op.adjoint_add(y, base, 0.37)
+    assert _rel(got, ref) < RTOL32
+
+
+# -- vector updates --------------------------------------------------------------------------
+
+
+def test_vector_updates_match_numpy():
+    rng = np.random.default_rng(9)
+    u, v, w = (rng.standard_normal((3, 37, 41)).astype(np.float32) for _ in range(3))
+    out, ref = np.empty_like(u), np.empty_like(u)
+    _combine(-0.67, u, 0.36, v, 3.3, w, out)
+    with kernels.numpy_only():
+        _combine(-0.67, u, 0.36, v, 3.3, w, ref)
+    assert _rel(out, ref) < RTOL32
+    _extrapolate(u, v, 0.8, out, None)
+    with kernels.numpy_only():
+        _extrapolate(u, v, 0.8, ref, None)
+    assert _rel(out, ref) < RTOL32
+    # Longer than one block of the kernel, so that several partial sums are added.
+    a, b, c = (rng.standard_normal(100_003).astype(np.float32) for _ in range(3))
+    d = _restart_dot(a, b, c, np.empty_like(a), None)
+    with kernels.numpy_only():
+        d_ref = _restart_dot(a, b, c, np.empty_like(a), None)
+    assert d == pytest.approx(d_ref, rel=1e-5)
+
+
+@pytest.mark.parametrize("isotropic", [True, False])
+@pytest.mark.parametrize("shape", [(3, 37, 41), (2, 1, 9), (2, 6, 1)])
+def test_combine_with_tv_matches_numpy(isotropic, shape):
+    rng = np.random.default_rng(12)
+    u, v, w = (rng.standard_normal(shape).astype(np.float32) for _ in range(3))
+    out, ref = np.empty_like(u), np.empty_like(u)
+    tv = _combine_tv(-0.67, u, 0.36, v, 3.3, w, out, isotropic)
+    with kernels.numpy_only():
+        tv_ref = _combine_tv(-0.67, u, 0.36, v, 3.3, w, ref, isotropic)
+    assert _rel(out, ref) < RTOL32
+    assert tv == pytest.approx(tv_ref, rel=RTOL32)
+
+
+# -- threads and whole solves ----------------------------------------------------------------
+
+
+def test_kernels_do_not_depend_on_threads():
+    op = OPS["kaleido9-sub"]
+    rng = np.random.default_rng(10)
+    x = rng.standard_normal(op.ishape).astype(np.float32)
+    y = rng.standard_normal(op.oshape).astype(np.float32)
+    outs = []
+    for n in (1, 2, 3):
+        with kernels.threads(n):
+            prox = TVProx(op.ishape)
+            outs.append((op.forward(x), op.adjoint(y), prox(x, 0.2, 3), tv_norm_per_band(x)))
+    for other in outs[1:]:
+        for a, b in zip(outs[0], other):
+            assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("name", ["gap-tv", "twist", "fista-tv"])
+def test_solvers_agree_with_the_numpy_path(name):
+    op = OPS["kaleido9-sub"]
+    rng = np.random.default_rng(11)
+    truth = rng.random(op.ishape).astype(np.float32)
+    g = op.forward(truth)
+    fast = solve(name, op, g, iters=20, tau=0.05)
+    with kernels.numpy_only():
+        ref = solve(name, op, g, iters=20, tau=0.05)
+    assert fast.iterations == ref.iterations
+    # 20 iterations of a nonlinear map amplify roundings a little, no more.
+    assert _rel(fast.x, ref.x) < 1e-4
+
+
+def test_solves_from_several_threads_at_once():
+    # Kernels launched from two Python threads at the same time (a Dask worker's threads)
+    # give what they give one after the other.
+    from concurrent.futures import ThreadPoolExecutor
+
+    op = OPS["kaleido9-sub"]
+    rng = np.random.default_rng(13)
+    gs = [op.forward(rng.random(op.ishape).astype(np.float32)) for _ in range(4)]
+    alone = [solve("twist", op, g, iters=15, tau=0.05).x for g in gs]
+    with ThreadPoolExecutor(2) as ex:
+        together = list(ex.map(lambda g: solve("twist", op, g, iters=15, tau=0.05).x, gs))
+    for a, b in zip(alone, together):
+        assert np.array_equal(a, b)
+
+
+_CHILD = r"""
+import numpy as np
+from concurrent.futures import ThreadPoolExecutor
+from recon.operators import kaleidoscope_cassi
+from recon.solvers import solve
+rng = np.random.default_rng(0)
+op = kaleidoscope_cassi(rng.random((3, 16, 18)).astype(np.float32), 0.7 * np.arange(5), 3)
+gs = [op.forward(rng.random(op.ishape).astype(np.float32)) for _ in range(4)]
+alone = [solve("fista-tv", op, g, iters=10, tau=0.05).x for g in gs]
+with ThreadPoolExecutor(2) as ex:
+    together = list(ex.map(lambda g: solve("fista-tv", op, g, iters=10, tau=0.05).x, gs))
+assert all(np.array_equal(a, b) for a, b in zip(alone, together))
+import numba
+print(numba.threading_layer())
+"""
+
+
+def test_concurrent_launches_survive_the_workqueue_layer():
+    # Without OpenMP or TBB Numba falls back to its "workqueue" layer, which aborts the
+    # process when two threads launch kernels at once; recon.kernels makes them take turns.
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    env = dict(os.environ, NUMBA_THREADING_LAYER="workqueue")
+    root = Path(__file__).resolve().parents[3]
+    r = subprocess.run([sys.executable, "-c", _CHILD], env=env, cwd=root, capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.strip().splitlines()[-1] == "workqueue"
