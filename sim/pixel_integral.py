@@ -317,7 +317,7 @@ class RowGeometry:
     ``cx`` (n, D, D): the mask-x polynomial at each of the band's nodes; ``cy`` (D, D): the
     mask-y polynomial averaged over them; ``pre``/``prc`` (h+1, D)/(h, D): row polynomials at
     the pixel rows' edges and centres; ``pce``/``pcc`` (w+1, D)/(w, D): column polynomials at
-    the pixel columns' edges and centres.
+    the pixel columns' edges and centres (``pceT``/``pccT``: the same, transposed).
     """
 
     def __init__(self, maps, k: int, nodes):
@@ -331,6 +331,9 @@ class RowGeometry:
         self.prc = legendre_values((np.arange(h) + r0 + 0.5 - rc) / sr, D)
         self.pce = legendre_values((np.arange(w + 1) + c0 - cc) / sc, D)
         self.pcc = legendre_values((np.arange(w) + c0 + 0.5 - cc) / sc, D)
+        # Column-major copies for the kernels' inner loops along a row.
+        self.pceT = np.ascontiguousarray(self.pce.T)
+        self.pccT = np.ascontiguousarray(self.pcc.T)
         self.cx = np.ascontiguousarray(maps.mask[k, list(nodes), 0])
         self.cy = np.ascontiguousarray(maps.mask[k, list(nodes), 1].mean(axis=0))
 
@@ -343,44 +346,42 @@ class RowGeometry:
 
 
 @njit(cache=True, nogil=True)
-def _row_edges(r, prc, pre, pce, pcc, cx, cy, X, Y0, Y1, XC):
-    """Mask-x of every pixel edge at every node (X, (w+1, n)), the footprints' y bounds (Y0, Y1)
-    and the pixels' centres in mask-x at the band's middle node (XC)."""
+def _row_edges(r, prc, pre, pceT, pccT, cx, cy, X, Y0, Y1, XC):
+    """Mask-x of every pixel edge at every node (X, (n, w+1)), the footprints' y bounds (Y0, Y1)
+    and the pixels' centres in mask-x at the band's middle node (XC).  The polynomials are
+    folded with the row first, then evaluated along the row (inner loops over columns)."""
     n, D = cx.shape[0], cx.shape[1]
-    w = pcc.shape[0]
-    cr = np.zeros((n, D))
+    w = pccT.shape[1]
     for j in range(n):
+        for e in range(w + 1):
+            X[j, e] = 0.0
         for b in range(D):
-            acc = 0.0
+            cb = 0.0
             for a in range(D):
-                acc += prc[r, a] * cx[j, a, b]
-            cr[j, b] = acc
-    ct = np.zeros(D)
-    cb = np.zeros(D)
-    for b in range(D):
-        for a in range(D):
-            ct[b] += pre[r, a] * cy[a, b]
-            cb[b] += pre[r + 1, a] * cy[a, b]
-    for e in range(w + 1):
-        for j in range(n):
-            acc = 0.0
-            for b in range(D):
-                acc += cr[j, b] * pce[e, b]
-            X[e, j] = acc
+                cb += prc[r, a] * cx[j, a, b]
+            for e in range(w + 1):
+                X[j, e] += cb * pceT[b, e]
     for c in range(w):
-        y0 = 0.0
-        y1 = 0.0
-        for b in range(D):
-            y0 += ct[b] * pcc[c, b]
-            y1 += cb[b] * pcc[c, b]
-        Y0[c] = min(y0, y1)
-        Y1[c] = max(y0, y1)
+        Y0[c] = 0.0
+        Y1[c] = 0.0
+    for b in range(D):
+        ct = 0.0
+        cbot = 0.0
+        for a in range(D):
+            ct += pre[r, a] * cy[a, b]
+            cbot += pre[r + 1, a] * cy[a, b]
+        for c in range(w):
+            Y0[c] += ct * pccT[b, c]
+            Y1[c] += cbot * pccT[b, c]
+    for c in range(w):
+        if Y1[c] < Y0[c]:
+            Y0[c], Y1[c] = Y1[c], Y0[c]
     jm = n // 2
     for c in range(w):
         if n % 2 == 1:
-            XC[c] = 0.5 * (X[c, jm] + X[c + 1, jm])
+            XC[c] = 0.5 * (X[jm, c] + X[jm, c + 1])
         else:
-            XC[c] = 0.25 * (X[c, jm - 1] + X[c + 1, jm - 1] + X[c, jm] + X[c + 1, jm])
+            XC[c] = 0.25 * (X[jm - 1, c] + X[jm - 1, c + 1] + X[jm, c] + X[jm, c + 1])
 
 
 @njit(cache=True, nogil=True)
@@ -434,9 +435,9 @@ def max_pieces(relay, height: int) -> int:
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _bracket(x, XC, c):
+def _bracket(x, XC, IXC, c):
     """(c, t): x lies between pixel centres XC[c] and XC[c+1], a fraction t of the way (c from
-    0 to w − 2, t clamped to [0, 1]); ``c`` starts the walk."""
+    0 to w − 2, t clamped to [0, 1]; IXC[c] = 1/(XC[c+1] − XC[c])); ``c`` starts the walk."""
     w = XC.shape[0]
     if w < 2:
         return 0, 0.0
@@ -445,7 +446,7 @@ def _bracket(x, XC, c):
         c += 1
     while c > 0 and XC[c] > x:
         c -= 1
-    t = (x - XC[c]) / (XC[c + 1] - XC[c])
+    t = (x - XC[c]) * IXC[c]
     return c, min(max(t, 0.0), 1.0)
 
 
@@ -466,15 +467,15 @@ def _locate(x, xb, lo, hi, ptr):
 
 
 @njit(cache=True, nogil=True)
-def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pce, pcc, cx, cy, tau,
+def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pceT, pccT, cx, cy, tau,
             out, fbar, adjoint, pmax):
     h = prc.shape[0]
-    w = pcc.shape[0]
+    w = pccT.shape[1]
     n = cx.shape[0]
     nseg = max(n - 1, 1)
     nint = mcol.shape[0]
     ay, by = relay[2], relay[3]
-    X = np.empty((w + 1, n))
+    X = np.empty((n, w + 1))
     Y0 = np.empty(w)
     Y1 = np.empty(w)
     XC = np.empty(w)
@@ -484,26 +485,35 @@ def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pce, pcc, cx, 
     ag = np.zeros(nint)
     aG = np.zeros(nint + 1)
     aGG = np.zeros(nint + 1)
+    gn = np.empty(n)          # GG of one edge at every node (forward)
+    an = np.empty(n)          # its adjoint
     mG = np.empty((w + 1, nseg))
     amG = np.zeros((w + 1, nseg))
     ptrs = np.zeros(n, np.int64)
-    plen = np.zeros((w + 1, pmax))   # a last row repeated: _bracket's t = 0 for w = 1
+    plen = np.zeros((w + 1, pmax))
+    dplen = np.zeros((w + 1, pmax))  # plen[c + 1] − plen[c] (0 past the last pixel)
+    IXC = np.zeros(w)
     pmr = np.zeros(pmax, np.int64)
     ptr_ = np.zeros(pmax, np.int64)
     n_mask = code.shape[0]
     for r in range(h):
-        _row_edges(r, prc, pre, pce, pcc, cx, cy, X, Y0, Y1, XC)
+        _row_edges(r, prc, pre, pceT, pccT, cx, cy, X, Y0, Y1, XC)
         ng = _row_pieces(Y0, Y1, ay, by, H, n_mask, plen, pmr, ptr_)
-        plen[w] = plen[w - 1]
+        for c in range(w - 1):
+            IXC[c] = 1.0 / (XC[c + 1] - XC[c])
+            for p in range(ng):
+                dplen[c, p] = plen[c + 1, p] - plen[c, p]
         xmin = X[0, 0]
-        xmax = X[w, 0]
+        xmax = X[0, w]
         for j in range(n):
-            xmin = min(xmin, X[0, j])
-            xmax = max(xmax, X[w, j])
+            xmin = min(xmin, X[j, 0])
+            xmax = max(xmax, X[j, w])
         lo = max(np.searchsorted(xb, xmin, side="right") - 1, 0)
         hi = min(np.searchsorted(xb, xmax, side="left"), nint - 1)
         if hi < lo:
             continue
+        for j in range(n):
+            ptrs[j] = lo
         if not adjoint:
             # Stage 1: the rows' mean of M f on every piece, then its integrals G and GG.
             c = 0
@@ -517,40 +527,36 @@ def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pce, pcc, cx, 
                     # The y span at this piece: linear between the neighbouring pixels' centres
                     # (it moves by ~1e-4 px from pixel to pixel).
                     xm = 0.5 * (xb[i] + xb[i + 1])
-                    c, t = _bracket(xm, XC, c)
+                    c, t = _bracket(xm, XC, IXC, c)
                     for p in range(ng):
                         mr = pmr[p]
                         tr = ptr_[p]
                         if mr >= 0 and tr >= 0 and code[mr, mc] == view:
-                            acc += (plen[c, p] + t * (plen[c + 1, p] - plen[c, p])) * f[tr, tc]
+                            acc += (plen[c, p] + t * dplen[c, p]) * f[tr, tc]
                 g[i] = acc
                 L = xb[i + 1] - xb[i]
                 GG[i + 1] = GG[i] + G[i] * L + 0.5 * acc * L * L
                 G[i + 1] = G[i] + acc * L
-            # Stage 2: each edge's mean of G over each segment (shared by neighbouring pixels).
-            for j in range(n):
-                ptrs[j] = lo
+            # Stage 2: every edge's GG at every node, then its mean G over each segment
+            # (edges are shared by neighbouring pixels, nodes by neighbouring segments).
             for e in range(w + 1):
+                for j in range(n):
+                    k = _locate(X[j, e], xb, lo, hi, ptrs[j])
+                    ptrs[j] = max(k, lo)
+                    gn[j] = _gg(X[j, e], k, xb, g, G, GG, lo, hi)
                 for s in range(nseg):
-                    x0 = X[e, s]
-                    x1 = X[e, min(s + 1, n - 1)]
+                    x0 = X[s, e]
+                    x1 = X[min(s + 1, n - 1), e]
                     if n > 1 and abs(x1 - x0) > 1e-9:
-                        k0 = _locate(x0, xb, lo, hi, ptrs[s])
-                        ptrs[s] = max(k0, lo)
-                        k1 = _locate(x1, xb, lo, hi, ptrs[min(s + 1, n - 1)])
-                        ptrs[min(s + 1, n - 1)] = max(k1, lo)
-                        mG[e, s] = (_gg(x1, k1, xb, g, G, GG, lo, hi)
-                                    - _gg(x0, k0, xb, g, G, GG, lo, hi)) / (x1 - x0)
+                        mG[e, s] = (gn[s + 1] - gn[s]) / (x1 - x0)
                     else:
                         xm = 0.5 * (x0 + x1)
-                        k0 = _locate(xm, xb, lo, hi, ptrs[s])
-                        ptrs[s] = max(k0, lo)
-                        mG[e, s] = _g1(xm, k0, xb, g, G, lo, hi)
+                        mG[e, s] = _g1(xm, _locate(xm, xb, lo, hi, ptrs[s]), xb, g, G, lo, hi)
             for c in range(w):
                 acc = 0.0
                 for s in range(nseg):
-                    wid = 0.5 * ((X[c + 1, s] - X[c, s])
-                                 + (X[c + 1, min(s + 1, n - 1)] - X[c, min(s + 1, n - 1)]))
+                    t1 = min(s + 1, n - 1)
+                    wid = 0.5 * ((X[s, c + 1] - X[s, c]) + (X[t1, c + 1] - X[t1, c]))
                     acc += (mG[c + 1, s] - mG[c, s]) / wid
                 out[r, c] = tau[r, c] * acc / nseg
         else:
@@ -567,42 +573,40 @@ def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pce, pcc, cx, 
                 if eb == 0.0:
                     continue
                 for s in range(nseg):
-                    wid = 0.5 * ((X[c + 1, s] - X[c, s])
-                                 + (X[c + 1, min(s + 1, n - 1)] - X[c, min(s + 1, n - 1)]))
+                    t1 = min(s + 1, n - 1)
+                    wid = 0.5 * ((X[s, c + 1] - X[s, c]) + (X[t1, c + 1] - X[t1, c]))
                     amG[c + 1, s] += eb / wid
                     amG[c, s] -= eb / wid
-            for j in range(n):
-                ptrs[j] = lo
             for e in range(w + 1):
+                for j in range(n):
+                    an[j] = 0.0
                 for s in range(nseg):
                     a = amG[e, s]
                     if a == 0.0:
                         continue
-                    x0 = X[e, s]
-                    x1 = X[e, min(s + 1, n - 1)]
+                    x0 = X[s, e]
+                    x1 = X[min(s + 1, n - 1), e]
                     if n > 1 and abs(x1 - x0) > 1e-9:
-                        k0 = _locate(x0, xb, lo, hi, ptrs[s])
-                        ptrs[s] = max(k0, lo)
-                        k1 = _locate(x1, xb, lo, hi, ptrs[min(s + 1, n - 1)])
-                        ptrs[min(s + 1, n - 1)] = max(k1, lo)
-                        aa = a / (x1 - x0)
-                        # ∂GG(x)/∂(GG_k, G_k, g_k) = (1, d, d²/2), d = x − xb_k, at both ends.
-                        for kk, xx, sg in ((k1, x1, 1.0), (k0, x0, -1.0)):
-                            if kk < lo:
-                                continue
-                            if kk > hi:
-                                aGG[hi + 1] += sg * aa
-                                aG[hi + 1] += sg * aa * (xx - xb[hi + 1])
-                                continue
-                            dd = xx - xb[kk]
-                            aGG[kk] += sg * aa
-                            aG[kk] += sg * aa * dd
-                            ag[kk] += sg * aa * 0.5 * dd * dd
+                        an[s + 1] += a / (x1 - x0)
+                        an[s] -= a / (x1 - x0)
                     else:
                         xm = 0.5 * (x0 + x1)
-                        k0 = _locate(xm, xb, lo, hi, ptrs[s])
-                        ptrs[s] = max(k0, lo)
-                        _g1_adj(xm, k0, a, xb, ag, aG, lo, hi)
+                        _g1_adj(xm, _locate(xm, xb, lo, hi, ptrs[s]), a, xb, ag, aG, lo, hi)
+                for j in range(n):
+                    k = _locate(X[j, e], xb, lo, hi, ptrs[j])
+                    ptrs[j] = max(k, lo)
+                    aa = an[j]
+                    if aa == 0.0 or k < lo:
+                        continue
+                    # ∂GG(x)/∂(GG_k, G_k, g_k) = (1, d, d²/2), d = x − xb_k.
+                    if k > hi:
+                        aGG[hi + 1] += aa
+                        aG[hi + 1] += aa * (X[j, e] - xb[hi + 1])
+                        continue
+                    dd = X[j, e] - xb[k]
+                    aGG[k] += aa
+                    aG[k] += aa * dd
+                    ag[k] += aa * 0.5 * dd * dd
             # The integrals' recursions run backwards.
             for i in range(hi, lo - 1, -1):
                 L = xb[i + 1] - xb[i]
@@ -615,13 +619,12 @@ def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pce, pcc, cx, 
                 tc = tcol[i]
                 if ag[i] != 0.0 and mc >= 0 and tc >= 0:
                     xm = 0.5 * (xb[i] + xb[i + 1])
-                    c, t = _bracket(xm, XC, c)
+                    c, t = _bracket(xm, XC, IXC, c)
                     for p in range(ng):
                         mr = pmr[p]
                         tr = ptr_[p]
                         if mr >= 0 and tr >= 0 and code[mr, mc] == view:
-                            fbar[tr, tc] += ag[i] * (plen[c, p] + t * (plen[c + 1, p]
-                                                                       - plen[c, p]))
+                            fbar[tr, tc] += ag[i] * (plen[c, p] + t * dplen[c, p])
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -666,7 +669,7 @@ def band_forward(f, code, view, relay, part, geom: RowGeometry, tau, out=None):
         out = np.zeros((geom.h, geom.w), np.float32)
     xb, mcol, tcol = part
     _kernel(f, code, int(view), np.asarray(relay, np.float64), f.shape[0], f.shape[1], xb, mcol,
-            tcol, geom.prc, geom.pre, geom.pce, geom.pcc, geom.cx, geom.cy, tau, out,
+            tcol, geom.prc, geom.pre, geom.pceT, geom.pccT, geom.cx, geom.cy, tau, out,
             np.zeros((1, 1), np.float64), False, max_pieces(relay, f.shape[0]))
     return out
 
@@ -678,6 +681,6 @@ def band_adjoint(e, code, view, relay, part, geom: RowGeometry, tau, shape, fbar
         fbar = np.zeros(shape, np.float64)
     xb, mcol, tcol = part
     _kernel(np.zeros((1, 1), np.float32), code, int(view), np.asarray(relay, np.float64),
-            int(shape[0]), int(shape[1]), xb, mcol, tcol, geom.prc, geom.pre, geom.pce,
-            geom.pcc, geom.cx, geom.cy, tau, e, fbar, True, max_pieces(relay, shape[0]))
+            int(shape[0]), int(shape[1]), xb, mcol, tcol, geom.prc, geom.pre, geom.pceT,
+            geom.pccT, geom.cx, geom.cy, tau, e, fbar, True, max_pieces(relay, shape[0]))
     return fbar

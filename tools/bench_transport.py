@@ -69,6 +69,8 @@ def electrons(design, irr, wl):
     (inside the window: the window is padded by the blur's reach before, cut after)."""
     from sim.sensor import mean_electrons
 
+    # The running integrals leave round-off of ~1e-12 of the peak, either sign.
+    irr = np.maximum(irr, 0.0)
     return mean_electrons(np.moveaxis(irr, 0, 2), design, wl, diffraction=True).astype(np.float64)
 
 

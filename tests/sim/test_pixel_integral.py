@@ -73,9 +73,10 @@ def _reference(f, code, view, relay, part, geom, tau, r):
     h, w = geom.h, geom.w
     n = geom.cx.shape[0]
     nseg = max(n - 1, 1)
-    X = np.empty((w + 1, n))
+    X = np.empty((n, w + 1))
     Y0, Y1, XC = np.empty(w), np.empty(w), np.empty(w)
-    pi._row_edges(r, geom.prc, geom.pre, geom.pce, geom.pcc, geom.cx, geom.cy, X, Y0, Y1, XC)
+    pi._row_edges(r, geom.prc, geom.pre, geom.pceT, geom.pccT, geom.cx, geom.cy, X, Y0, Y1, XC)
+    X = X.T
     H = f.shape[0]
     pmax = pi.max_pieces(relay, H)
     plen = np.zeros((w + 1, pmax))
