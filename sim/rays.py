@@ -3,7 +3,7 @@ r"""Following a ray through the instrument: the delta-path walk shared by every 
 Every element after the diffuser is a delta interaction (lens, mask, prism, mirror), so a
 path from the sensor to the diffuser is a walk: intersect, sample the element's BSDF (no
 choice is left to chance), continue.  :func:`walk` does that for a batch of rays and records
-what the tracers need: the path's throughput (hero wavelength, :mod:`sim.prism`), where it
+what the tracers need: the path's throughput (hero wavelength, :mod:`sim.dielectric`), where it
 crosses the mask plate and where it reaches the diffuser, which mirrors it met, and where the
 segment leaving the relay lens crosses the tube's exit plane (the kaleidoscope's only stop).
 
