@@ -23,20 +23,20 @@ from __future__ import annotations
 import numpy as np
 
 from sim.glass import get_glass
-from sim.variant import delta_bsdf_base, ensure_variant
+from sim.variant import delta_bsdf_base, ensure_variant, register_plugin
 
 __all__ = ["register", "dispersive_dielectric", "mesh_shape", "PLUGIN"]
 
 PLUGIN = "kaleidospec_sellmeier"
-_registered = False
 
 
 def register():
     """Register the ``kaleidospec_sellmeier`` BSDF with Mitsuba (idempotent)."""
-    global _registered
-    mi = ensure_variant()
-    if _registered:
-        return
+    register_plugin("bsdf", PLUGIN, _dielectric_class)
+
+
+def _dielectric_class(mi):
+    """The ``DispersiveDielectric`` plugin class for the variant ``mi``."""
     import drjit as dr
 
     class DispersiveDielectric(delta_bsdf_base()):
@@ -79,8 +79,7 @@ def register():
         def to_string(self):
             return f"DispersiveDielectric[B={self.B}, C={self.C}, hero={self.hero}]"
 
-    mi.register_bsdf(PLUGIN, lambda props: DispersiveDielectric(props))
-    _registered = True
+    return DispersiveDielectric
 
 
 def dispersive_dielectric(glass: str = "BK7", hero: bool = True, fresnel: bool = True) -> dict:

@@ -25,21 +25,21 @@ from __future__ import annotations
 import numpy as np
 
 from sim.dielectric import dispersive_dielectric, mesh_shape
-from sim.variant import delta_bsdf_base, ensure_variant
+from sim.variant import delta_bsdf_base, ensure_variant, register_plugin
 
 __all__ = ["register", "thin_lens_bsdf", "lens_shape", "spherical_lens_mesh", "real_lens_shape",
            "PLUGIN"]
 
 PLUGIN = "kaleidospec_thinlens"
-_registered = False
 
 
 def register():
     """Register the ``kaleidospec_thinlens`` BSDF with Mitsuba (idempotent)."""
-    global _registered
-    mi = ensure_variant()
-    if _registered:
-        return
+    register_plugin("bsdf", PLUGIN, _thin_lens_class)
+
+
+def _thin_lens_class(mi):
+    """The ``ThinLensBSDF`` plugin class for the variant ``mi``."""
     import drjit as dr
 
     class ThinLensBSDF(delta_bsdf_base()):
@@ -70,8 +70,7 @@ def register():
         def to_string(self):
             return f"ThinLensBSDF[f={self.f}]"
 
-    mi.register_bsdf(PLUGIN, lambda props: ThinLensBSDF(props))
-    _registered = True
+    return ThinLensBSDF
 
 
 def thin_lens_bsdf(focal_mm: float, center, transmittance: float = 1.0) -> dict:

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.variant import ensure_variant
+from sim.variant import ensure_variant, register_plugin
 
 __all__ = ["SPAWN_EPS", "continue_ray", "sensor_rays", "Walk", "walk", "register_integrator",
            "INTEGRATOR"]
@@ -39,7 +39,6 @@ __all__ = ["SPAWN_EPS", "continue_ray", "sensor_rays", "Walk", "walk", "register
 SPAWN_EPS = 1e-5
 #: Mitsuba plugin name of the exact path integrator (:func:`register_integrator`).
 INTEGRATOR = "kaleidospec_path"
-_registered = False
 
 
 def continue_ray(si, wo_world, wavelengths):
@@ -158,10 +157,11 @@ def register_integrator():
     Mitsuba's ``path`` integrator computes for such a scene, where emitter sampling never
     connects through a delta BSDF), without ``spawn_ray``'s sideways step.
     """
-    global _registered
-    mi = ensure_variant()
-    if _registered:
-        return INTEGRATOR
+    return register_plugin("integrator", INTEGRATOR, _integrator_class)
+
+
+def _integrator_class(mi):
+    """The ``ExactPath`` plugin class for the variant ``mi``."""
     import drjit as dr
 
     class ExactPath(mi.SamplingIntegrator):
@@ -196,6 +196,4 @@ def register_integrator():
         def to_string(self):
             return f"ExactPath[max_depth={self.max_depth}]"
 
-    mi.register_integrator(INTEGRATOR, lambda props: ExactPath(props))
-    _registered = True
-    return INTEGRATOR
+    return ExactPath
