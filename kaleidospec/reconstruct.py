@@ -55,6 +55,14 @@ def first_views(n_views) -> tuple[int, ...]:
     return VIEW_ORDER[:n]
 
 
+def _check_calibrated(cal, view_ids) -> None:
+    """Raise :class:`recon.errors.InputError` unless the calibration holds every view."""
+    missing = [v for v in view_ids if v not in cal.view_ids]
+    if missing:
+        raise InputError(f"view(s) {missing} missing: the calibration has views "
+                         f"{list(cal.view_ids)} (recalibrate with the views the run needs)")
+
+
 def tv_weight(solver, tau, n_views):
     """The TV weight: ``tau`` if given, else the solver's default per view × the views (the
     data term sums over the views' pixels; GAP-TV's projection step does not, so its weight
@@ -179,10 +187,7 @@ def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = DEFAULTS["
 
     ids = first_views(n_views)
     check_design(cal, metadata)
-    missing = [v for v in ids if v not in cal.view_ids]
-    if missing:
-        raise InputError(f"view(s) {missing} missing: the calibration has views "
-                         f"{list(cal.view_ids)} (recalibrate with the views the run needs)")
+    _check_calibrated(cal, ids)
     g = frame_measurements(frame, metadata, cal, ids)
     tg = None
     if truth is not None:
@@ -273,10 +278,7 @@ class Reconstructor:
         from kaleidospec.models import grid_offset, truth_on_grid
 
         ids = first_views(n_views)
-        missing = [v for v in ids if v not in cal.view_ids]
-        if missing:
-            raise InputError(f"view(s) {missing} missing: the calibration has views "
-                             f"{list(cal.view_ids)}")
+        _check_calibrated(cal, ids)
         # Gains folded into the masks: the cube comes out in the scene's radiance units.
         op = calibrated_operator(cal, ids)
         return cls(op, lambda frame, meta: frame_measurements(frame, meta, cal, ids),
