@@ -34,7 +34,7 @@ from recon.errors import InputError
 __all__ = ["MODELS", "DEFAULT_MODEL", "RUN_MODELS", "GAINS", "SMEAR_SAMPLES", "check_model",
            "holds", "model_of", "model_gains", "cube_grid", "grid_offset", "truth_on_grid"]
 
-#: Every calibrated model a calibration can hold, the one every calibration holds first.
+#: Every calibrated model a calibration can hold; the first (shifted) is in every calibration.
 MODELS = ("shifted", "smeared", "footprint")
 #: The model used when none is named.  Measured on ``small`` (noise-free frames, the model's
 #: prediction of the truth against the frame, mean over 5 views): shifted 6.8 % (ColorChecker)
@@ -72,8 +72,9 @@ def holds(cal, model: str) -> bool:
 
 
 def model_of(cal, model: str | None = None) -> str:
-    """The calibrated model that ``model`` names for ``cal`` (``None``: :data:`DEFAULT_MODEL`;
-    ``"smeared"`` falls back to ``"shifted"`` for a calibration without it)."""
+    """The calibrated model that ``model`` names for ``cal``; ``None`` names
+    :data:`DEFAULT_MODEL` (were that ``"smeared"``: the best model the calibration holds).
+    A model the calibration lacks raises :class:`recon.errors.InputError`."""
     from recon.calibration.operator import resolve_model
 
     if model is None:
