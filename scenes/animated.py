@@ -203,7 +203,7 @@ class RotatingColorwheel(Animation):
 
         ``grid_shape`` (h, w) and ``offset`` (oy, ox) describe another pixel grid whose pixel
         (y, x) sits at the scene's (y + oy, x + ox) (a reconstruction grid, see
-        :func:`kaleidospec.pipeline.grid_offset`); by default the scene's own grid.
+        :func:`kaleidospec.models.grid_offset`); by default the scene's own grid.
         """
         h, w = self.shape if grid_shape is None else (int(grid_shape[0]), int(grid_shape[1]))
         oy, ox = (float(o) for o in offset)

@@ -24,13 +24,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.variant import ensure_variant
+from sim.variant import ensure_variant, register_plugin
 
 __all__ = ["CubeRegion", "cube_region", "register", "texel_index",
            "diffuser_shape", "PLUGIN"]
 
 PLUGIN = "kaleidospec_cubetex"
-_registered = False
 
 
 @dataclass(frozen=True)
@@ -92,10 +91,11 @@ def texel_index(p, region: CubeRegion):
 
 def register():
     """Register the ``kaleidospec_cubetex`` texture with Mitsuba (idempotent)."""
-    global _registered
-    mi = ensure_variant()
-    if _registered:
-        return
+    register_plugin("texture", PLUGIN, _texture_class)
+
+
+def _texture_class(mi):
+    """The ``CubeTexture`` plugin class for the variant ``mi``."""
     import drjit as dr
 
     class CubeTexture(mi.Texture):
@@ -149,8 +149,7 @@ def register():
         def to_string(self):
             return "CubeTexture[]"
 
-    mi.register_texture(PLUGIN, lambda props: CubeTexture(props))
-    _registered = True
+    return CubeTexture
 
 
 def diffuser_shape(design, cube_lhw: np.ndarray | None, wavelengths, z: float = 0.0):

@@ -16,7 +16,7 @@ from the sensor back to the diffuser). The interaction is a delta transmission o
 ``transmittance`` (radiance is conserved along the bent ray, as étendue is).
 
 :func:`spherical_lens_mesh` builds a real biconvex singlet (two spherical caps and an edge) with
-trimesh for the ``dielectric`` BSDF or :class:`sim.prism.DispersiveDielectric`; its normals
+trimesh for the ``dielectric`` BSDF or the Sellmeier glass of :mod:`sim.dielectric`; its normals
 face outward, as Mitsuba's dielectric needs to tell inside from outside.
 """
 
@@ -24,21 +24,22 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim.variant import delta_bsdf_base, ensure_variant
+from sim.dielectric import dispersive_dielectric, mesh_shape
+from sim.variant import delta_bsdf_base, ensure_variant, register_plugin
 
-__all__ = ["register", "thin_lens_bsdf", "lens_shape", "spherical_lens_mesh", "mesh_shape",
-           "real_lens_shape", "PLUGIN"]
+__all__ = ["register", "thin_lens_bsdf", "lens_shape", "spherical_lens_mesh", "real_lens_shape",
+           "PLUGIN"]
 
 PLUGIN = "kaleidospec_thinlens"
-_registered = False
 
 
 def register():
     """Register the ``kaleidospec_thinlens`` BSDF with Mitsuba (idempotent)."""
-    global _registered
-    mi = ensure_variant()
-    if _registered:
-        return
+    register_plugin("bsdf", PLUGIN, _thin_lens_class)
+
+
+def _thin_lens_class(mi):
+    """The ``ThinLensBSDF`` plugin class for the variant ``mi``."""
     import drjit as dr
 
     class ThinLensBSDF(delta_bsdf_base()):
@@ -69,8 +70,7 @@ def register():
         def to_string(self):
             return f"ThinLensBSDF[f={self.f}]"
 
-    mi.register_bsdf(PLUGIN, lambda props: ThinLensBSDF(props))
-    _registered = True
+    return ThinLensBSDF
 
 
 def thin_lens_bsdf(focal_mm: float, center, transmittance: float = 1.0) -> dict:
@@ -181,30 +181,10 @@ def spherical_lens_mesh(focal_mm: float, diameter_mm: float, n_glass: float = 1.
     return mesh
 
 
-def mesh_shape(vertices, faces, bsdf, name: str = "mesh"):
-    """A Mitsuba triangle mesh built in memory from ``vertices`` (V, 3) and ``faces`` (F, 3).
-
-    Face winding sets the geometric normal (counter-clockwise seen from outside = outward);
-    no vertex normals, so the shading is flat and refraction uses the true facet normals.
-    ``bsdf`` is a Mitsuba dict or object.
-    """
-    mi = ensure_variant()
-    v = np.ascontiguousarray(vertices, dtype=np.float32)
-    f = np.ascontiguousarray(faces, dtype=np.uint32)
-    props = mi.Properties()
-    props["bsdf"] = mi.load_dict(bsdf) if isinstance(bsdf, dict) else bsdf
-    mesh = mi.Mesh(name, v.shape[0], f.shape[0], props)
-    params = mi.traverse(mesh)
-    params["vertex_positions"] = mi.Float(v.ravel())
-    params["faces"] = mi.UInt32(f.ravel())
-    params.update()
-    return mesh
-
-
 def real_lens_shape(focal_mm: float, center, diameter_mm: float, glass: str = "BK7",
                     design_nm: float = 587.6, axis=(0.0, 0.0, 1.0), hero: bool = False):
     """A real equiconvex BK-7 (or other glass) singlet as a Mitsuba mesh with the dispersive
-    dielectric of :mod:`sim.prism` (so it shows chromatic aberration; ~1.6× slower than the
+    dielectric of :mod:`sim.dielectric` (so it shows chromatic aberration; ~1.6× slower than the
     ideal thin lens), its axis rotated from +z onto ``axis``.
 
     ``hero`` stays False: the backward path meets the prism (which keeps only the first
@@ -212,7 +192,6 @@ def real_lens_shape(focal_mm: float, center, diameter_mm: float, glass: str = "B
     and must not zero-and-reweight a second time.
     """
     from sim.glass import refractive_index
-    from sim.prism import dispersive_dielectric
 
     mesh = spherical_lens_mesh(focal_mm, diameter_mm, float(refractive_index(glass, design_nm)))
     v = np.asarray(mesh.vertices, dtype=np.float64)

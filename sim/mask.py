@@ -17,12 +17,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim.variant import delta_bsdf_base, ensure_variant
+from sim.variant import delta_bsdf_base, ensure_variant, register_plugin
 
 __all__ = ["register", "mask_shape", "cell_index", "quartz_transmittance", "PLUGIN"]
 
 PLUGIN = "kaleidospec_mask"
-_registered = False
 
 
 def quartz_transmittance(wavelength_nm) -> np.ndarray:
@@ -62,10 +61,11 @@ def cell_index(p_x, p_y, g):
 
 def register():
     """Register the ``kaleidospec_mask`` BSDF with Mitsuba (idempotent)."""
-    global _registered
-    mi = ensure_variant()
-    if _registered:
-        return
+    register_plugin("bsdf", PLUGIN, _mask_class)
+
+
+def _mask_class(mi):
+    """The ``MaskBSDF`` plugin class for the variant ``mi``."""
     import drjit as dr
 
     class MaskBSDF(delta_bsdf_base()):
@@ -105,8 +105,7 @@ def register():
         def to_string(self):
             return "MaskBSDF[]"
 
-    mi.register_bsdf(PLUGIN, lambda props: MaskBSDF(props))
-    _registered = True
+    return MaskBSDF
 
 
 def mask_shape(design, z: float, pattern: np.ndarray | None = None) -> dict:

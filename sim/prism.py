@@ -1,17 +1,8 @@
-"""The dispersive prism: a Sellmeier dielectric BSDF and the prism mesh at minimum deviation.
+"""The dispersive prism: a mesh of Sellmeier glass (:mod:`sim.dielectric`) at minimum deviation.
 
-Mitsuba 3's ``dielectric`` has one index for all wavelengths. :class:`DispersiveDielectric`
-refracts with the Sellmeier index :math:`n(\\lambda)` of the glass (:mod:`sim.glass`) at the
-path's wavelength, as a delta transmission with the unpolarised Fresnel transmittance
-:math:`1 - F` (reflections are not traced: they leave the optical path) and the radiance factor
-:math:`\\eta_{ti}^2` (which cancels between the two faces).
-
-A spectral Mitsuba path carries four wavelengths but only one direction. Refracting all four
-along the first wavelength's direction is silently wrong, so on *entering* the glass the BSDF
-keeps the first ("hero") wavelength only: weight ×(4, 0, 0, 0). This is unbiased (the film
-averages the four) and happens once per path because only refraction is sampled and the prism
-is convex, so every path enters it exactly once. Lenses made of the same BSDF after the prism
-use ``hero=False``.
+The glass refracts every path with the index :math:`n(\\lambda)` at the path's (hero)
+wavelength, so the prism spreads the bands along :math:`x` (:mod:`sim.dielectric` explains the
+hero wavelength and the Fresnel weight).
 
 :func:`prism_geometry` places a prism of apex angle :math:`A` at minimum deviation for the
 centre wavelength :math:`\\lambda_c`: the beam arrives along :math:`+z` at the incidence
@@ -23,76 +14,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim.glass import get_glass, min_deviation_incidence_rad
-from sim.variant import delta_bsdf_base, ensure_variant
+from sim.dielectric import dispersive_dielectric, mesh_shape
+from sim.glass import min_deviation_incidence_rad
 
-__all__ = ["register", "dispersive_dielectric", "prism_geometry", "prism_shape", "PLUGIN"]
-
-PLUGIN = "kaleidospec_sellmeier"
-_registered = False
-
-
-def register():
-    """Register the ``kaleidospec_sellmeier`` BSDF with Mitsuba (idempotent)."""
-    global _registered
-    mi = ensure_variant()
-    if _registered:
-        return
-    import drjit as dr
-
-    class DispersiveDielectric(delta_bsdf_base()):
-        """Smooth dielectric with a Sellmeier index at the hero wavelength (delta transmission)."""
-
-        def __init__(self, props):
-            super().__init__(props)
-            self.B = [float(props.get(f"B{i}", 0.0)) for i in (1, 2, 3)]
-            self.C = [float(props.get(f"C{i}", 0.0)) for i in (1, 2, 3)]
-            self.hero = bool(props.get("hero", True))
-            self.fresnel = bool(props.get("fresnel", True))
-
-        def index(self, wavelength_nm):
-            lam2 = dr.square(wavelength_nm * 1e-3)
-            n2 = 1.0
-            for b, c in zip(self.B, self.C):
-                n2 = n2 + b * lam2 / (lam2 - c)
-            return dr.sqrt(n2)
-
-        def sample(self, ctx, si, sample1, sample2, active=True):
-            lam0 = si.wavelengths[0]
-            eta = self.index(lam0)
-            cos_i = mi.Frame3f.cos_theta(si.wi)
-            r, cos_t, eta_it, eta_ti = mi.fresnel(cos_i, eta)
-            bs = dr.zeros(mi.BSDFSample3f)
-            bs.wo = mi.refract(si.wi, cos_t, eta_ti)
-            bs.pdf = 1.0
-            bs.eta = eta_it
-            bs.sampled_type = mi.UInt32(+mi.BSDFFlags.DeltaTransmission)
-            bs.sampled_component = 0
-            t = (1.0 - r) if self.fresnel else dr.select(r < 1.0, 1.0, 0.0)
-            if ctx.mode == mi.TransportMode.Radiance:
-                t = t * dr.square(eta_ti)
-            w = mi.Spectrum(t)
-            if self.hero:
-                entering = cos_i > 0
-                w = dr.select(entering, w * mi.Spectrum(4.0, 0.0, 0.0, 0.0), w)
-            return bs, dr.select(active & (r < 1.0), w, mi.Spectrum(0.0))
-
-        def to_string(self):
-            return f"DispersiveDielectric[B={self.B}, C={self.C}, hero={self.hero}]"
-
-    mi.register_bsdf(PLUGIN, lambda props: DispersiveDielectric(props))
-    _registered = True
-
-
-def dispersive_dielectric(glass: str = "BK7", hero: bool = True, fresnel: bool = True) -> dict:
-    """Mitsuba dict of the Sellmeier dielectric for ``glass`` (see :mod:`sim.glass`)."""
-    register()
-    g = get_glass(glass)
-    d = {"type": PLUGIN, "hero": bool(hero), "fresnel": bool(fresnel)}
-    for i in range(3):
-        d[f"B{i + 1}"] = float(g.B[i])
-        d[f"C{i + 1}"] = float(g.C[i])
-    return d
+__all__ = ["prism_geometry", "prism_shape"]
 
 
 def prism_geometry(glass: str, apex_deg: float, center_nm: float, entry_point,
@@ -185,8 +110,6 @@ def prism_shape(glass: str, apex_deg: float, center_nm: float, entry_point, heig
 
     Returns (mesh, exit_dir, exit_point, entry_surface, glass_path); see :func:`prism_geometry`.
     """
-    from sim.lens import mesh_shape
-
     v, f, d, p, q, t = prism_geometry(glass, apex_deg, center_nm, entry_point, height_mm,
                                       depth_mm, base_side)
     mesh = mesh_shape(v, f, dispersive_dielectric(glass, hero=hero, fresnel=fresnel), "prism")

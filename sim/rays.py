@@ -3,7 +3,7 @@ r"""Following a ray through the instrument: the delta-path walk shared by every 
 Every element after the diffuser is a delta interaction (lens, mask, prism, mirror), so a
 path from the sensor to the diffuser is a walk: intersect, sample the element's BSDF (no
 choice is left to chance), continue.  :func:`walk` does that for a batch of rays and records
-what the tracers need: the path's throughput (hero wavelength, :mod:`sim.prism`), where it
+what the tracers need: the path's throughput (hero wavelength, :mod:`sim.dielectric`), where it
 crosses the mask plate and where it reaches the diffuser, which mirrors it met, and where the
 segment leaving the relay lens crosses the tube's exit plane (the kaleidoscope's only stop).
 
@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.variant import ensure_variant
+from sim.variant import ensure_variant, register_plugin
 
 __all__ = ["SPAWN_EPS", "continue_ray", "sensor_rays", "Walk", "walk", "register_integrator",
            "INTEGRATOR"]
@@ -39,7 +39,6 @@ __all__ = ["SPAWN_EPS", "continue_ray", "sensor_rays", "Walk", "walk", "register
 SPAWN_EPS = 1e-5
 #: Mitsuba plugin name of the exact path integrator (:func:`register_integrator`).
 INTEGRATOR = "kaleidospec_path"
-_registered = False
 
 
 def continue_ray(si, wo_world, wavelengths):
@@ -158,10 +157,11 @@ def register_integrator():
     Mitsuba's ``path`` integrator computes for such a scene, where emitter sampling never
     connects through a delta BSDF), without ``spawn_ray``'s sideways step.
     """
-    global _registered
-    mi = ensure_variant()
-    if _registered:
-        return INTEGRATOR
+    return register_plugin("integrator", INTEGRATOR, _integrator_class)
+
+
+def _integrator_class(mi):
+    """The ``ExactPath`` plugin class for the variant ``mi``."""
     import drjit as dr
 
     class ExactPath(mi.SamplingIntegrator):
@@ -196,6 +196,4 @@ def register_integrator():
         def to_string(self):
             return f"ExactPath[max_depth={self.max_depth}]"
 
-    mi.register_integrator(INTEGRATOR, lambda props: ExactPath(props))
-    _registered = True
-    return INTEGRATOR
+    return ExactPath

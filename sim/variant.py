@@ -17,7 +17,8 @@ from __future__ import annotations
 import os
 import warnings
 
-__all__ = ["ensure_variant", "PREFERRED", "FALLBACK", "is_vectorized", "delta_bsdf_base"]
+__all__ = ["ensure_variant", "PREFERRED", "FALLBACK", "is_vectorized", "delta_bsdf_base",
+           "register_plugin"]
 
 PREFERRED = "llvm_ad_spectral"
 FALLBACK = "scalar_spectral"
@@ -127,3 +128,21 @@ def delta_bsdf_base():
 
         base = _delta_bases[mi.variant()] = DeltaBSDF
     return base
+
+
+_plugins: set = set()
+
+
+def register_plugin(kind: str, name: str, build) -> str:
+    """Register with Mitsuba, once, the plugin class that ``build(mi)`` defines, as ``name``.
+
+    ``kind`` is ``"bsdf"``, ``"texture"`` or ``"integrator"``.  A plugin class derives from the
+    chosen variant's Mitsuba types, so it can only be defined once a variant is set: ``build``
+    receives the ``mitsuba`` module and runs on the first call only.  Returns ``name``.
+    """
+    mi = ensure_variant()
+    if name not in _plugins:
+        cls = build(mi)
+        getattr(mi, f"register_{kind}")(name, lambda props: cls(props))
+        _plugins.add(name)
+    return name

@@ -11,3 +11,20 @@ def shared_cache(tmp_path_factory):
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("KALEIDOSPEC_CACHE", str(path))
         yield path
+
+
+@pytest.fixture(scope="module")
+def fresh_cache(tmp_path_factory):
+    """``$KALEIDOSPEC_CACHE`` set, for one test module, to a fresh, empty folder (nothing reused
+    from earlier runs); the module is skipped where Mitsuba's spectral variant is not usable."""
+    pytest.importorskip("mitsuba")
+    from sim.variant import ensure_variant
+
+    try:
+        ensure_variant()
+    except Exception as err:  # no usable LLVM for drjit on this machine
+        pytest.skip(f"Mitsuba's spectral variant is not usable here: {err}")
+    path = tmp_path_factory.mktemp("kaleidospec-cache")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("KALEIDOSPEC_CACHE", str(path))
+        yield path

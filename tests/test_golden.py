@@ -51,9 +51,9 @@ N_VIEWS = 5
 SOLVER = "fista-tv"
 ITERS = 50
 #: Which reconstruction the golden holds: "oracle" (the exact operator of the design on the
-#: rendered frame, :func:`kaleidospec.pipeline.reconstruct_oracle`) or "calibrated" (the
+#: rendered frame, :func:`kaleidospec.reconstruct.reconstruct_oracle`) or "calibrated" (the
 #: product path: calibration from rendered captures, then
-#: :func:`kaleidospec.pipeline.reconstruct_views`), which the golden holds so that a change
+#: :func:`kaleidospec.reconstruct.reconstruct_views`), which the golden holds so that a change
 #: in the calibration code is caught too.
 RECON_PATH = "calibrated"
 
@@ -73,23 +73,24 @@ def golden_design(**changes):
 
 def render(design):
     """Noise-free raw frame of :data:`SCENE` → ``(frame, metadata, truth, wavelengths)``."""
-    from kaleidospec import pipeline
+    from kaleidospec.instrument import render_scene
 
-    return pipeline.render_scene(SCENE, design, seed=SEED, noise=False)
+    return render_scene(SCENE, design, seed=SEED, noise=False)
 
 
 def reconstruct(frame, meta, design, truth, *, iters: int = ITERS, tau=None):
     """Reconstruct ``N_VIEWS`` views of ``frame`` by :data:`RECON_PATH` (a calibration is
     cached in ``$KALEIDOSPEC_CACHE``). Returns ``(cube, truth on its grid, info)``."""
-    from kaleidospec import pipeline
+    from kaleidospec.calibrate import calibrate
+    from kaleidospec.reconstruct import reconstruct_oracle, reconstruct_views
 
     if RECON_PATH == "oracle":
-        cube, info = pipeline.reconstruct_oracle(frame, meta, design, N_VIEWS, solver=SOLVER,
-                                                 iters=iters, tau=tau, truth=truth)
+        cube, info = reconstruct_oracle(frame, meta, design, N_VIEWS, solver=SOLVER,
+                                        iters=iters, tau=tau, truth=truth)
         return cube, np.asarray(truth, np.float32), info
-    cal = pipeline.calibrate(design, progress=False)
-    cube, info = pipeline.reconstruct_views(frame, meta, cal, N_VIEWS, solver=SOLVER,
-                                            iters=iters, tau=tau, truth=truth, design=design)
+    cal = calibrate(design, progress=False)
+    cube, info = reconstruct_views(frame, meta, cal, N_VIEWS, solver=SOLVER, iters=iters,
+                                   tau=tau, truth=truth, design=design)
     return cube, info["truth_grid"], info
 
 
@@ -214,19 +215,9 @@ pytestmark = pytest.mark.mitsuba
 
 
 @pytest.fixture(scope="module")
-def cache(tmp_path_factory):
+def cache(fresh_cache):
     """A fresh, empty cache folder for the whole module (nothing reused from earlier runs)."""
-    pytest.importorskip("mitsuba")
-    from sim.variant import ensure_variant
-
-    try:
-        ensure_variant()
-    except Exception as err:  # no usable LLVM for drjit on this machine
-        pytest.skip(f"Mitsuba's spectral variant is not usable here: {err}")
-    path = tmp_path_factory.mktemp("kaleidospec-cache")
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("KALEIDOSPEC_CACHE", str(path))
-        yield path
+    return fresh_cache
 
 
 @pytest.fixture(scope="module")

@@ -171,7 +171,7 @@ def test_demo_writes_what_the_readme_describes(demo):
     import imageio.v3 as iio
 
     from kaleidospec.commands.demo import DEFAULT_VIEWS
-    from kaleidospec.pipeline import parse_views
+    from kaleidospec.run import parse_views
 
     cwd, out, r = demo
     m = json.loads((out / "metrics.json").read_text())

@@ -45,10 +45,11 @@ def main(argv=None) -> int:
                     help="reconstruct with the calibration or the design's exact operator")
     args = ap.parse_args(argv)
 
-    from kaleidospec.pipeline import calibrate
-    from kaleidospec.video import (FrameRenderer, SegmentReconstructor, VideoLayout,
-                                   _calibration_file, frame_metrics, reconstruct_sequence,
-                                   render_sequence)
+    from kaleidospec.calibrate import calibrate, calibration_file
+    from kaleidospec.evaluate import frame_metrics
+    from kaleidospec.instrument import FrameRenderer
+    from kaleidospec.reconstruct import Reconstructor
+    from kaleidospec.video import VideoLayout, reconstruct_sequence, render_sequence
     from recon.metrics import psnr
     from scenes.animated import RotatingColorwheel
     from sim.design import get_design
@@ -98,8 +99,8 @@ def main(argv=None) -> int:
 
     def make(nv):
         if args.operator == "oracle":
-            return SegmentReconstructor.oracle(d, nv)
-        return SegmentReconstructor.calibrated(cal, nv)
+            return Reconstructor.oracle(d, nv)
+        return Reconstructor.calibrated(cal, nv)
     rec = make(5)
     rec.solver_options()  # the step, computed once per segment
     frames = [read_raw(lay.raw(i)) for i in range(n)]
@@ -130,7 +131,7 @@ def main(argv=None) -> int:
           f"{gap[1:].mean():+.2f} dB (target: within 0.5 dB)")
     if not args.skip_parallel:
         settings = {"operator": args.operator, "design": d.to_dict(),
-                    "calibration": str(_calibration_file(d)), "views": 5,
+                    "calibration": str(calibration_file(d)), "views": 5,
                     "solver": "gap-tv", "iters": args.iters, "cold_iters": args.cold_iters,
                     "tau": None, "mu": 0.0, "animation": anim.describe(),
                     "wavelengths": [float(x) for x in d.wavelengths]}

@@ -11,7 +11,7 @@ Configurations (one scene at a time; the natural scene and the ColorChecker by d
 (b) **one view** of the kaleidoscope: rendered, calibrated, reconstructed from the centre view.
 (c) **five views without dispersion inversion**: a kaleidoscope whose mirrored columns disperse
     the same way as the centre after registration *cannot be built with mirrors*, so this one is
-    simulated: the exact operator :func:`kaleidospec.pipeline.oracle_operator` ``(design, 5,
+    simulated: the exact operator :func:`kaleidospec.instrument.oracle_operator` ``(design, 5,
     inversion=False)`` produces the measurement (with the sensor's shot and read noise at the
     same exposure) and reconstructs it.
 (d) **five views with dispersion inversion**, by the *same oracle path*
@@ -94,39 +94,39 @@ def noisy_measurement(op, truth_bm: np.ndarray, design, seed: int, noise: bool) 
 def oracle_run(design, n_views: int, inversion: bool, truth, wl, *, solver, iters, tau, seed,
                noise):
     """Reconstruct ``truth`` through the exact operator (simulated measurement)."""
-    from kaleidospec import pipeline
+    from kaleidospec.instrument import oracle_operator
+    from kaleidospec.reconstruct import solve_views
 
-    op = pipeline.oracle_operator(design, n_views, inversion=inversion)
+    op = oracle_operator(design, n_views, inversion=inversion)
     peak = float(truth.max())
     truth_bm = np.ascontiguousarray(np.moveaxis(truth / peak, 2, 0), dtype=np.float32)
     g = noisy_measurement(op, truth_bm, design, seed, noise)
-    # The same normalisation and TV weight as every reconstruction of the pipeline.
-    cube, info = pipeline.solve_views(op, g, n_views, solver=solver, iters=iters, tau=tau)
+    # The same normalisation and TV weight as every reconstruction of kaleidospec.
+    cube, info = solve_views(op, g, n_views, solver=solver, iters=iters, tau=tau)
     return cube * np.float32(peak), info
 
 
 def _rendered_recon(frame, meta, design, cal, n, truth, *, solver, iters, tau, progress):
     """Reconstruct a rendered frame: calibrated (``cal`` given) or with the exact operator
     (``cal`` None). Returns (cube, info, truth on the cube's grid)."""
-    from kaleidospec import pipeline
+    from kaleidospec.reconstruct import reconstruct_oracle, reconstruct_views
 
     if cal is None:
-        cube, info = pipeline.reconstruct_oracle(frame, meta, design, n, solver=solver,
-                                                 iters=iters, tau=tau, progress=progress)
+        cube, info = reconstruct_oracle(frame, meta, design, n, solver=solver, iters=iters,
+                                        tau=tau, progress=progress)
         return cube, info, truth
-    cube, info = pipeline.reconstruct_views(frame, meta, cal, n, solver=solver, iters=iters,
-                                            tau=tau, truth=truth, progress=progress,
-                                            design=design)
+    cube, info = reconstruct_views(frame, meta, cal, n, solver=solver, iters=iters, tau=tau,
+                                   truth=truth, progress=progress, design=design)
     # The calibration's grid leaves out the guard stripe: score on the truth moved onto it.
     return cube, info, info["truth_grid"]
 
 
 def run_scene(scene, design, design_t, cal, cal_t, *, solver, iters, tau, seed, noise, progress):
-    from kaleidospec import pipeline
+    from kaleidospec.instrument import render_scene
 
     factor = design_t.view_size_px / design.view_size_px
     rows, cubes = {}, {}
-    frame, meta, truth, wl = pipeline.render_scene(scene, design, seed=seed, noise=noise)
+    frame, meta, truth, wl = render_scene(scene, design, seed=seed, noise=noise)
 
     def record(key, cube, info, ref=truth, extra=None):
         rows[key] = {"config": CONFIGS[key], **metrics_of(cube, ref, wl),
@@ -136,7 +136,7 @@ def run_scene(scene, design, design_t, cal, cal_t, *, solver, iters, tau, seed, 
               f"SSIM {fmt(rows[key]['ssim'], '.3f')}", flush=True)
 
     # (a) traditional CASSI, rendered and calibrated at its own resolution.
-    frame_t, meta_t, truth_t, _ = pipeline.render_scene(scene, design_t, seed=seed, noise=noise)
+    frame_t, meta_t, truth_t, _ = render_scene(scene, design_t, seed=seed, noise=noise)
     cube_t, info_t, grid_t = _rendered_recon(frame_t, meta_t, design_t, cal_t, 1, truth_t,
                                              solver=solver, iters=iters, tau=tau,
                                              progress=progress)
@@ -189,7 +189,7 @@ def print_table(label: str, rows: dict, checks: list[dict]) -> None:
           f"SSIM {fmt(a['full_resolution']['ssim'], '.3f')}; the row above scores it at "
           f"{'×'.join(map(str, a['scored_at_px']))} px (both downsampled).")
     print("  (c) cannot be built with mirrors: (c) and (d) are both simulated with the exact "
-          "oracle operator (pipeline.oracle_operator) on the truth, with sensor noise.")
+          "oracle operator (kaleidospec.instrument.oracle_operator) on the truth, with sensor noise.")
     print("  paper's ranking (Fig. 8), measured:")
     for c in checks:
         x, y = c["measured"]
@@ -229,9 +229,9 @@ def main(argv=None) -> int:
     ap.add_argument("--design", default="small")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="FIELD=VALUE")
     ap.add_argument("--scenes", default="natural,colorchecker")
-    from kaleidospec.pipeline import DEFAULTS
+    from kaleidospec.reconstruct import DEFAULTS
 
-    # The pipeline's defaults were chosen from measurements on the calibrated path (README).
+    # kaleidospec's defaults were chosen from measurements on the calibrated path (README).
     ap.add_argument("--solver", default=DEFAULTS["solver"])
     ap.add_argument("--iters", type=int, default=DEFAULTS["iters"])
     ap.add_argument("--tau", type=float, default=None)
@@ -263,7 +263,7 @@ def main(argv=None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
 
-    from kaleidospec import pipeline
+    from kaleidospec.calibrate import calibrate
 
     print(f"design {a.design} {' '.join(a.overrides)}: kaleidoscope {design.hash} "
           f"({design.view_size_px} px views), traditional {design_t.hash} "
@@ -271,8 +271,8 @@ def main(argv=None) -> int:
           flush=True)
     t0 = time.perf_counter()
     if a.operator == "calibrated":
-        cal = pipeline.calibrate(design, progress=a.progress)
-        cal_t = pipeline.calibrate(design_t, progress=a.progress)
+        cal = calibrate(design, progress=a.progress)
+        cal_t = calibrate(design_t, progress=a.progress)
         print(f"calibrations ready in {time.perf_counter() - t0:.1f} s", flush=True)
     else:
         cal = cal_t = None
@@ -294,7 +294,7 @@ def main(argv=None) -> int:
         "experiment": "paper Fig. 8: traditional CASSI vs 1 view vs 5 views without/with "
                       "dispersion inversion",
         "note": "(c) cannot be built with mirrors; (c) and (d) use the exact oracle operator "
-                "(pipeline.oracle_operator) on simulated measurements with sensor noise. "
+                "(kaleidospec.instrument.oracle_operator) on simulated measurements with sensor noise. "
                 "(a), (b), (d') are rendered and calibrated.",
         "configs": CONFIGS, "design": a.design, "overrides": a.overrides,
         "design_hash": design.hash, "traditional_design_hash": design_t.hash,

@@ -2,9 +2,9 @@
 
 For every scene (the natural scene, the ColorChecker, and any cube file given) this renders one
 raw frame of a design whose sensor holds all nine views, calibrates the instrument from rendered
-captures (:func:`kaleidospec.pipeline.calibrate`, cached by design hash), and reconstructs from
+captures (:func:`kaleidospec.calibrate.calibrate`, cached by design hash), and reconstructs from
 the first *n* views in the paper's order (centre, left, right, top, bottom, then the corners)
-with :func:`kaleidospec.pipeline.reconstruct_views`. All view counts use the same frame, so the
+with :func:`kaleidospec.reconstruct.reconstruct_views`. All view counts use the same frame, so the
 only thing that changes along a row of the table is how many views the solver sees.
 
 Reported per view count: PSNR (global, peak = max of the truth; and the paper's protocol, each
@@ -155,35 +155,34 @@ def run_scene(scene: str, design, cal, views, *, solver, iters, tau, seed, noise
     """Render ``scene`` once and reconstruct it from each view count; returns (rows, images).
 
     With ``oracle`` each view count is also reconstructed from the same frame with the exact
-    operator (:func:`kaleidospec.pipeline.reconstruct_oracle`), on the design's grid: the
+    operator (:func:`kaleidospec.reconstruct.reconstruct_oracle`), on the design's grid: the
     transport the frame was rendered with, which knows the simulator's Monte Carlo draw (which
     texel and wavelength each of a pixel's rays met).  With ``retrace`` (a seed) also with the
     same optics traced afresh with that seed: the instrument's physics without the draw."""
-    from kaleidospec import pipeline
+    from kaleidospec.instrument import oracle_operator, render_scene
+    from kaleidospec.reconstruct import reconstruct_oracle, reconstruct_views
 
     t0 = time.perf_counter()
-    frame, meta, truth, wl = pipeline.render_scene(scene, design, seed=seed, noise=noise)
+    frame, meta, truth, wl = render_scene(scene, design, seed=seed, noise=noise)
     render_s = time.perf_counter() - t0
     rows, cubes = [], {}
     for n in views:
-        cube, info = pipeline.reconstruct_views(frame, meta, cal, n, solver=solver, iters=iters,
-                                                tau=tau, truth=truth, progress=progress,
-                                                model=model)
+        cube, info = reconstruct_views(frame, meta, cal, n, solver=solver, iters=iters, tau=tau,
+                                       truth=truth, progress=progress, model=model)
         # The shifted model's grid leaves out the guard stripe's columns: score against the
         # truth moved onto the model's grid (info["truth_grid"]), not the design's square grid.
         grid = info["truth_grid"]
         row = {"views": n, **metrics_of(cube, grid, wl), "seconds": float(info.get("seconds", 0.0)),
                "tau": finite(info.get("tau")), "iters": int(info.get("iters", iters))}
         if oracle:
-            ocube, oinfo = pipeline.reconstruct_oracle(frame, meta, design, n, solver=solver,
-                                                       iters=iters, tau=tau, progress=progress)
+            ocube, oinfo = reconstruct_oracle(frame, meta, design, n, solver=solver,
+                                              iters=iters, tau=tau, progress=progress)
             row["oracle"] = {**metrics_of(ocube, truth, wl),
                              "seconds": float(oinfo.get("seconds", 0.0))}
         if retrace is not None:
-            op = pipeline.oracle_operator(design, n, seed=retrace)
-            rcube, rinfo = pipeline.reconstruct_oracle(frame, meta, design, n, solver=solver,
-                                                       iters=iters, tau=tau, progress=progress,
-                                                       op=op)
+            op = oracle_operator(design, n, seed=retrace)
+            rcube, rinfo = reconstruct_oracle(frame, meta, design, n, solver=solver,
+                                              iters=iters, tau=tau, progress=progress, op=op)
             row["retraced"] = {**metrics_of(rcube, truth, wl), "seed": int(retrace),
                                "seconds": float(rinfo.get("seconds", 0.0))}
         rows.append(row)
@@ -318,9 +317,10 @@ def main(argv=None) -> int:
     ap.add_argument("--scenes", default="natural,colorchecker",
                     help="comma-separated scene names or cube files")
     ap.add_argument("--views", default="1,2,3,5,9", help="view counts (default 1,2,3,5,9)")
-    from kaleidospec.pipeline import DEFAULTS
+    from kaleidospec.models import DEFAULT_MODEL, RUN_MODELS
+    from kaleidospec.reconstruct import DEFAULTS
 
-    # The pipeline's defaults were chosen from measurements on the calibrated path (README).
+    # kaleidospec's defaults were chosen from measurements on the calibrated path (README).
     ap.add_argument("--solver", default=DEFAULTS["solver"])
     ap.add_argument("--iters", type=int, default=DEFAULTS["iters"])
     ap.add_argument("--tau", type=float, default=None, help="TV weight (solver default if unset)")
@@ -332,7 +332,7 @@ def main(argv=None) -> int:
     ap.add_argument("--retrace", type=int, default=None, metavar="SEED",
                     help="also reconstruct with the exact operator traced afresh with SEED "
                          "(the optics without the frame's Monte Carlo draw)")
-    ap.add_argument("--model", choices=("shifted", "footprint"), default="shifted",
+    ap.add_argument("--model", choices=RUN_MODELS, default=DEFAULT_MODEL,
                     help="calibrated forward model (footprint: also the comb captures)")
     ap.add_argument("--progress", action="store_true")
     a = ap.parse_args(argv)
@@ -349,7 +349,7 @@ def main(argv=None) -> int:
         design = get_design(a.design, a.overrides)
         # One frame serves every view count: the design's views widened to the first
         # max(views) ids (the optics do not change; the hash, and so the caches, do).
-        from kaleidospec.pipeline import design_for_views
+        from kaleidospec.instrument import design_for_views
 
         design = design_for_views(design, max(views))
         if not design.views_fit:
@@ -359,14 +359,14 @@ def main(argv=None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
 
-    from kaleidospec import pipeline
+    from kaleidospec.calibrate import calibrate
 
     print(f"design {a.design} {' '.join(a.overrides)} (hash {design.hash}): "
           f"{design.view_size_px}×{design.view_size_px} px views, {design.n_bands} bands "
           f"{design.wavelengths[0]:g}–{design.wavelengths[-1]:g} nm; solver {a.solver}, "
           f"{a.iters} iterations, {a.model} model", flush=True)
     t0 = time.perf_counter()
-    cal = pipeline.calibrate(design, progress=a.progress, footprint=a.model == "footprint")
+    cal = calibrate(design, model=a.model, progress=a.progress)
     cal_s = time.perf_counter() - t0
     print(f"calibration ready in {cal_s:.1f} s", flush=True)
 

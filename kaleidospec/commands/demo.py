@@ -27,12 +27,12 @@ def demo(
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress bars."),
 ) -> None:
     """Render the natural scene with the small design, calibrate, reconstruct, report."""
-    from kaleidospec import pipeline
-    from kaleidospec.commands.run import check_model
-    from sim.design import get_design
+    from kaleidospec.instrument import design_for_views, get_design
+    from kaleidospec.models import check_model
+    from kaleidospec.run import parse_views, run
 
     check_model(model)
-    d = pipeline.design_for_views(get_design("small"), 5)
-    pipeline.run(DEFAULT_SCENE, d, out, views=pipeline.parse_views(DEFAULT_VIEWS),
-                 progress=progress, oracle=False, log=typer.echo, model=model)
+    d = design_for_views(get_design("small"), 5)
+    run(DEFAULT_SCENE, d, out, views=parse_views(DEFAULT_VIEWS), progress=progress,
+        oracle=False, log=typer.echo, model=model)
     typer.echo(f"wrote {out}/")

@@ -1,4 +1,4 @@
-"""``kaleidospec design``: inspect an instrument design (sim.design.Design)."""
+"""``kaleidospec design``: inspect an instrument design (:class:`sim.design.Design`)."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ def show(
     """Print the design's fields and derived quantities as JSON."""
     import json
 
-    from sim.design import get_design, parse_overrides
+    from kaleidospec.instrument import get_design, parse_overrides
 
     d = get_design(design, parse_overrides(set_))
     # Fields at the top level (as in a raw frame's sidecar), derived quantities below them.

@@ -34,11 +34,10 @@ def render(
     import math
     import time
 
+    from kaleidospec.instrument import (get_design, parse_overrides, scene_cube,
+                                        simulate_frame, write_frame)
     from recon.errors import InputError
     from recon.io.atomic import check_output, output_parents
-    from scenes.registry import get_scene
-    from sim.design import get_design, parse_overrides
-    from sim.frame import scene_grid, simulate_frame, write_frame
 
     if spp is not None and spp < 1:
         raise InputError(f"--spp must be at least 1, got {spp}")
@@ -48,7 +47,7 @@ def render(
         raise InputError(f"--band-sampling must be box or centre, got {sampling!r}")
     check_output(out, [scene], parents=True)
     d = get_design(design, parse_overrides(set_))
-    cube, wl = get_scene(scene, shape=scene_grid(d, scene), wavelengths=d.wavelengths)
+    cube, wl = scene_cube(scene, d)
     t0 = time.perf_counter()
     frame, meta = simulate_frame(d, cube, wl, direct=direct, spp=spp, seed=seed,
                                  sampling=sampling, wavelength_nm=wavelength, noise=noise,

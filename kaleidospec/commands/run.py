@@ -14,18 +14,6 @@ from typing import List, Optional
 
 import typer
 
-#: The calibrated models a run can ask for (both calibrated by ``kaleidospec run`` itself).
-RUN_MODELS = ("shifted", "footprint")
-
-
-def check_model(model: str) -> None:
-    """Raise :class:`recon.errors.InputError` unless ``--model`` names one of
-    :data:`RUN_MODELS`."""
-    from recon.errors import InputError
-
-    if model not in RUN_MODELS:
-        raise InputError(f"--model must be one of {', '.join(RUN_MODELS)}, got {model!r}")
-
 
 def run(
     scene: str = typer.Option(..., "--scene", help="Built-in scene name or a cube file."),
@@ -53,10 +41,11 @@ def run(
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress bars."),
 ) -> None:
     """Render SCENE, reconstruct it from 1..9 views with the calibrated operator, and report."""
-    from kaleidospec import pipeline
+    from kaleidospec.instrument import design_for_views, get_design, parse_overrides
+    from kaleidospec.models import check_model
+    from kaleidospec.run import parse_views, run as run_scene
     from recon.app import solver_names
     from recon.errors import InputError
-    from sim.design import get_design, parse_overrides
 
     if solver not in solver_names():
         raise InputError(f"--solver must be one of {', '.join(solver_names())}, got {solver!r}")
@@ -65,7 +54,7 @@ def run(
     check_model(model)
     if tau is not None and not tau >= 0:
         raise InputError(f"--tau must be >= 0, got {tau}")
-    counts = pipeline.parse_views(views)
+    counts = parse_views(views)
     d = get_design(design, parse_overrides(set_))
     raw_frame = None
     if raw is not None:
@@ -76,8 +65,8 @@ def run(
         frame, meta = read_raw(raw)
         raw_frame = (frame, meta)
     else:
-        d = pipeline.design_for_views(d, max(counts))
-    pipeline.run(scene, d, out, views=counts, solver=solver, iters=iters, tau=tau, seed=seed,
-                 progress=progress, oracle=oracle and raw is None, raw=raw_frame,
-                 widen=raw is None, log=typer.echo, model=model)
+        d = design_for_views(d, max(counts))
+    run_scene(scene, d, out, views=counts, solver=solver, iters=iters, tau=tau, seed=seed,
+              progress=progress, oracle=oracle and raw is None, raw=raw_frame,
+              widen=raw is None, log=typer.echo, model=model)
     typer.echo(f"wrote {out}/")

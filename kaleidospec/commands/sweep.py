@@ -17,10 +17,10 @@ def _run(kind: str, start, stop, step, design, set_, scene, views, solver, iters
     """Shared body of both commands (heavy imports here, not at module level)."""
     import os
 
+    from kaleidospec.instrument import parse_overrides
     from kaleidospec.sweep import SweepSettings, run_sweep, sweep_values
     from recon.errors import InputError
     from recon.io.atomic import check_output, output_parents
-    from sim.design import parse_overrides
 
     d0, d1, ds = DEFAULT_RANGES[kind]
     values = sweep_values(d0 if start is None else start, d1 if stop is None else stop,
@@ -34,9 +34,7 @@ def _run(kind: str, start, stop, step, design, set_, scene, views, solver, iters
                              scene=scene, n_views=views, tau=tau, seed=seed, spp=spp,
                              reconstruct=recon, **given)
     # Validate the base design (unknown fields, bad values) before any work starts.
-    from kaleidospec.sweep import _base_design
-
-    _base_design(settings)
+    settings.base_design()
     out = out or f"sweeps/{kind}-{design}"
     # A built-in scene's name is no file to protect (an --out of that name is fine).
     check_output(out, [scene if os.path.exists(scene) else None], folder=True, parents=True)

@@ -77,10 +77,10 @@ def video(
     """Render and reconstruct a dynamic scene frame by frame (4D hyperspectral video)."""
     import os
 
+    from kaleidospec.instrument import parse_overrides
     from kaleidospec.video import run_video
     from recon.errors import InputError
     from recon.io.atomic import check_output, output_parents
-    from sim.design import parse_overrides
 
     if frames is not None and frames < 1:
         raise InputError(f"--frames must be >= 1, got {frames}")

@@ -57,7 +57,7 @@ from recon.io.arrays import read_json_object
 FORMAT = "kaleidospec-calibration"
 VERSION = 1
 #: Calibration code version (part of the cache key, :func:`calibration_path`): bump it when the
-#: capture renderer or the pipeline's calibration steps change.
+#: capture renderer or the application's calibration steps (kaleidospec.calibrate) change.
 CODE_VERSION = 5
 _CODE_VERSION: str | None = None
 ARRAY_FIELDS = ("view_boxes", "homographies", "mask_images", "offsets", "gains", "wavelengths")
@@ -418,7 +418,7 @@ def code_version() -> str:
     :mod:`recon.calibration`, so that a cached calibration made by other code is not reused.
 
     :data:`CODE_VERSION` covers what the digest cannot see: bump it when the capture renderer
-    or the application layer that runs the steps (``kaleidospec.pipeline``) changes what a
+    or the application layer that runs the steps (``kaleidospec.calibrate``) changes what a
     calibration holds.
     """
     global _CODE_VERSION

@@ -87,15 +87,6 @@ def test_views_are_widened_for_the_view_count():
     assert p9["design_hash"] != p5["design_hash"]
 
 
-def test_smallest_reaching_interpolates():
-    from kaleidospec.sweep import smallest_reaching
-
-    assert smallest_reaching([10, 20, 30], [40, 50, 70]) == pytest.approx(25.0)
-    assert smallest_reaching([10, 20], [60, 80]) == 10.0
-    assert smallest_reaching([10, 20], [10, 20]) is None
-    assert smallest_reaching([10, 20, 30], [40, math.nan, 80]) == pytest.approx(20.0)
-
-
 def test_local_process_pool_returns_every_point():
     from kaleidospec.sweep import _local_map, evaluate_point, make_points
 
@@ -203,6 +194,7 @@ def test_sweep_runs_on_a_dask_cluster(cache, tmp_path):
     pytest.importorskip("mitsuba")
     distributed = pytest.importorskip("distributed")
     import kaleidospec.sweep as sw
+    from kaleidospec.report import sweep_rows
 
     local = sw.run_sweep(_settings(), [30.0], tmp_path / "local", workers=1, log=None,
                          plot=False)
@@ -212,6 +204,6 @@ def test_sweep_runs_on_a_dask_cluster(cache, tmp_path):
                            scheduler=cluster.scheduler_address)
     assert [r["status"] for r in res.results] == ["ok", "invalid"]
     # The same point computed on the cluster and locally measures the same.
-    a, b = (sw.rows_from_results(r.results, _settings())[0] for r in (local, res))
+    a, b = (sweep_rows(r.results, _settings())[0] for r in (local, res))
     for key in ("dispersion_span_meas_px", "view_size_meas_px"):
         assert float(b[key]) == pytest.approx(float(a[key]), rel=1e-6), key

@@ -50,7 +50,7 @@ def _truth(i):
 @pytest.fixture
 def sequence(tmp_path):
     """A rendered sequence (raw frames + truth) of the synthetic instrument and its settings."""
-    from kaleidospec.pipeline import calibrated_operator
+    from kaleidospec.reconstruct import calibrated_operator
     from kaleidospec.video import VideoLayout
     from recon.calibration import save_calibration
 
@@ -78,10 +78,11 @@ def sequence(tmp_path):
 
 
 def _frame_problem(out, cal, i):
-    from kaleidospec.video import SegmentReconstructor, VideoLayout
+    from kaleidospec.reconstruct import Reconstructor
+    from kaleidospec.video import VideoLayout
     from recon.io.raw import read_raw
 
-    rec = SegmentReconstructor.calibrated(cal, 2, tau=0.02)
+    rec = Reconstructor.calibrated(cal, 2, tau=0.02)
     frame, meta = read_raw(VideoLayout(out).raw(i))
     return rec, rec.measurement(frame, meta), _truth(i)
 
@@ -241,58 +242,10 @@ def test_temporal_term():
 
 
 # ------------------------------------------------------------------ rendering (Mitsuba)
-TINY = {"sensor_pixel_um": 40, "sensor_width_px": 300, "sensor_height_px": 240,
-        "mask_pitch_um": 80, "band_step_nm": 50}
-
-
-@pytest.fixture(scope="module")
-def tiny(tmp_path_factory):
-    pytest.importorskip("mitsuba")
-    import os
-
-    from sim import transport
-    from sim.design import get_design
-
-    old = os.environ.get("KALEIDOSPEC_CACHE")
-    os.environ["KALEIDOSPEC_CACHE"] = str(tmp_path_factory.mktemp("cache"))
-    transport._MEMO.clear()
-    yield get_design("small", TINY)
-    transport._MEMO.clear()
-    if old is None:
-        os.environ.pop("KALEIDOSPEC_CACHE", None)
-    else:
-        os.environ["KALEIDOSPEC_CACHE"] = old
-
-
-@pytest.mark.mitsuba
-def test_renderer_matches_simulate_frame_and_never_retraces(tiny):
-    from kaleidospec.video import FrameRenderer
-    from scenes.animated import RotatingColorwheel
-    from sim import transport
-    from sim.frame import simulate_frame
-
-    v = tiny.view_size_px
-    anim = RotatingColorwheel((v, v), tiny.wavelengths, n_frames=3, speed_deg_s=45)
-    r = FrameRenderer(tiny, (v, v), tiny.wavelengths)
-    built = transport.STATS["built"]
-    cube = anim.frame(1)
-    s = r.exposure_for(cube)
-    ref, meta = simulate_frame(tiny, cube, tiny.wavelengths, noise=False)
-    assert s == pytest.approx(meta["radiance_scale"], rel=1e-5)
-    mine = r.render(cube, radiance_scale=s, noise=False)
-    # Same model; float32 sums in another order may round a count the other way.
-    assert np.abs(mine - ref).max() <= 1 and np.mean(mine == ref) > 0.99
-    for i in range(3):
-        r.render(anim.frame(i), radiance_scale=s, seed=[0, i])
-    assert transport.STATS["built"] == built  # only pixel integrals after the first trace
-    noisy = [r.render(cube, radiance_scale=s, seed=[0, k]) for k in (1, 1, 2)]
-    np.testing.assert_array_equal(noisy[0], noisy[1])
-    assert not np.array_equal(noisy[0], noisy[2])
-
-
 @pytest.mark.mitsuba
 def test_render_sequence_resumes(tiny, tmp_path):
-    from kaleidospec.video import FrameRenderer, VideoLayout, render_sequence
+    from kaleidospec.instrument import FrameRenderer
+    from kaleidospec.video import VideoLayout, render_sequence
     from recon.io.raw import read_raw
     from scenes.animated import RotatingColorwheel
 

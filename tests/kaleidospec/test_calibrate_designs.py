@@ -15,23 +15,14 @@ REDUCED = {"sensor_width_px": 300, "sensor_height_px": 240, "sensor_pixel_um": 4
 
 
 @pytest.fixture(scope="module", autouse=True)
-def cache(tmp_path_factory):
-    pytest.importorskip("mitsuba")
-    from sim.variant import ensure_variant
-
-    try:
-        ensure_variant()
-    except Exception as err:  # no usable LLVM for drjit on this machine
-        pytest.skip(f"Mitsuba's spectral variant is not usable here: {err}")
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("KALEIDOSPEC_CACHE", str(tmp_path_factory.mktemp("kaleidospec-cache")))
-        yield
+def cache(fresh_cache):
+    return fresh_cache
 
 
 def _check(design):
-    from kaleidospec import pipeline
+    from kaleidospec.calibrate import calibrate
 
-    cal = pipeline.calibrate(design, progress=False, repeats=2)
+    cal = calibrate(design, progress=False, repeats=2)
     ids = tuple(sorted(design.views))
     assert tuple(cal.view_ids) == ids
     boxes = np.asarray(cal.view_boxes)

@@ -1,0 +1,260 @@
+r"""The simulated instrument, as the application sees it: designs, raw frames, calibration
+captures and the design's exact operator.
+
+This is the only module of :mod:`kaleidospec` that imports :mod:`sim`; the other stages see
+what a lab sees — a design description, raw frames with their sidecars, captures of known
+targets — and so would work unchanged on a real instrument.  The built-in scenes are rendered
+here too (:mod:`scenes`).
+
+- **Designs** (:mod:`sim.design`): :func:`get_design`, :func:`parse_overrides`,
+  :func:`design_for_views` (a design that traces the views a count needs) and
+  :func:`design_of` (the design a frame's sidecar records).
+- **Frames**: :func:`render_scene` (one scene, its raw frame and its ground truth),
+  :func:`scene_cube`, :func:`simulate_frame` and :func:`write_frame` (the steps of
+  ``kaleidospec render``), :class:`FrameRenderer` (many frames of one design: a video) and
+  :func:`animation` (a moving scene).
+- **Calibration captures** (:mod:`sim.captures`): :func:`render_captures` (whites, lines,
+  checkerboard and ColorChecker), :func:`comb_captures` (the footprint model's comb targets),
+  the band-pass filters :func:`band_intervals` and the design's dispersion averaged over each
+  band, :func:`band_mean_dispersion`.
+- **The exact operator** (:mod:`sim.oracle`): :func:`oracle_operator` and
+  :func:`oracle_measurements`, the converged optics the calibrated models are measured against.
+- **Design studies** (:mod:`sim.measure`, :mod:`sim.glass`): :func:`measure_design`,
+  :func:`apex_for_span`.
+- **Housekeeping**: :func:`cache_dir` (where transports and calibrations are cached),
+  :func:`limit_threads`, :func:`release_transports`.
+
+Independence of frames and captures.  A scene frame is built at
+:data:`sim.frame.SCENE_OVERSAMPLE` times the reconstruction grid (a cube file keeps its own
+resolution), so it carries detail no reconstruction grid holds, and it goes through the
+transport traced with the scene frames' own seed (:data:`sim.transport.SEEDS`), another
+realisation of the optics than the captures'.  A calibration learnt from the captures is
+therefore scored on light it has not seen.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from recon.errors import InputError
+from sim.bands import band_intervals
+from sim.captures import CHECKER_NM, comb_captures, render_captures
+from sim.design import Design, get_design, parse_overrides
+from sim.frame import ground_truth, simulate_frame, write_frame
+from sim.glass import apex_for_span
+from sim.measure import measure_all as measure_design
+from sim.oracle import VIEW_ORDER, oracle_measurements, oracle_operator
+
+__all__ = [
+    "VIEW_ORDER", "Design", "get_design", "parse_overrides", "design_for_views", "design_of",
+    "render_scene", "scene_cube", "simulate_frame", "write_frame", "ground_truth",
+    "FrameRenderer", "animation", "render_captures", "comb_captures", "CHECKER_NM",
+    "band_intervals", "band_mean_dispersion", "oracle_operator", "oracle_measurements",
+    "measure_design", "apex_for_span", "cache_dir", "limit_threads", "release_transports",
+]
+
+
+# ------------------------------------------------------------------------------- designs
+def design_for_views(design, n_views: int):
+    """``design`` with its ``views`` widened to hold the first ``n_views`` views.
+
+    The ``views`` field only says which views the simulator traces and calibration finds (the
+    optics are the same), so a 9-view run uses the same design with all nine views; its hash,
+    and so its caches, differ.
+    """
+    need = VIEW_ORDER[:int(n_views)]
+    if set(need) <= set(design.views):
+        return design
+    return design.replace(views=tuple(sorted(set(design.views) | set(need))))
+
+
+def design_of(metadata, design=None):
+    """``design`` if given, else the design recorded in a raw frame's sidecar."""
+    if design is not None:
+        return design
+    d = (metadata or {}).get("design")
+    if not isinstance(d, dict):
+        raise InputError("the frame's sidecar has no design: cannot place the ground truth")
+    return Design.from_dict(d)
+
+
+# ------------------------------------------------------------------------------- frames
+def scene_cube(scene, design, **scene_params):
+    """The cube ``(H, W, L)`` and wavelengths of a built-in scene or a cube file, at the
+    design's bands: a built-in scene on :func:`sim.frame.scene_grid` (finer than any
+    reconstruction grid), a file at its own resolution."""
+    from scenes.registry import get_scene
+    from sim.frame import scene_grid
+
+    return get_scene(str(scene), shape=scene_grid(design, scene),
+                     wavelengths=design.wavelengths, **scene_params)
+
+
+def render_scene(scene, design, *, seed: int = 0, noise: bool = True, angle_deg=None,
+                 radiance_scale=None, **scene_params):
+    """Render the raw frame of a built-in scene or a cube file.
+
+    Parameters
+    ----------
+    scene : str or path
+        A name from :func:`scenes.registry.list_scenes` or a cube file.
+    design : sim.design.Design
+    seed : int
+        Sensor noise seed.
+    noise : bool
+        Shot and read noise.
+    angle_deg : float, optional
+        Rotation of the colour wheel (``colorwheel`` only; a scene parameter).
+    radiance_scale : float, optional
+        Fixed exposure (default: auto-exposure, brightest pixel at 80 % of the full well).
+    **scene_params
+        Passed to the scene builder.
+
+    Returns
+    -------
+    frame : (Hs, Ws) float32, DN
+    metadata : dict
+        The sidecar (``design_hash``, ``radiance_scale``, ``scene``, ...).
+    truth : (v, v, L) float32
+        The scene averaged onto the centre view's grid (:func:`sim.frame.ground_truth`); see
+        :func:`kaleidospec.models.truth_on_grid` for a model's reconstruction grid.
+    wavelengths : (L,) float64
+    """
+    if angle_deg is not None:
+        scene_params["angle_deg"] = angle_deg
+    cube, wl = scene_cube(scene, design, **scene_params)
+    frame, meta = simulate_frame(design, cube, wl, seed=seed, noise=noise,
+                                 radiance_scale=radiance_scale)
+    meta["scene"] = str(scene)
+    if scene_params:
+        meta["scene_params"] = {k: v_ for k, v_ in scene_params.items()}
+    return frame, meta, ground_truth(design, cube), wl
+
+
+class FrameRenderer:
+    r"""Raw frames of one design from its transport: :class:`sim.frame.FrameModel` (the exact
+    pixel integrals, each band's Airy blur and the sensor's photo-electrons) and a noise draw.
+
+    The mean photo-electron count of a pixel is :math:`s\,\bar N_e` with :math:`s` the
+    radiance scale (exposure); the frame is :func:`sim.sensor.digitise` of it.  The transport
+    is the scene frames' (:data:`sim.transport.SEEDS`), loaded once; this matches
+    :func:`sim.frame.simulate_frame` (the tests check it).
+
+    Parameters
+    ----------
+    design : sim.design.Design
+    shape : (H, W)
+        The scene cubes' grid (any resolution).
+    wavelengths : array (L,), optional
+        Bands of the design (all by default).
+    sampling : {"box", "centre"}
+    diffraction : bool
+        Airy blur per band.
+    progress : bool
+        Progress bar while the transport is traced (first use of a design only).
+    """
+
+    def __init__(self, design, shape, wavelengths=None, *, sampling: str = "box",
+                 diffraction: bool = True, progress: bool = False):
+        from sim.bands import check_cube
+        from sim.frame import FrameModel
+        from sim.transport import SEEDS
+
+        wl = design.wavelengths if wavelengths is None else wavelengths
+        h, w = (int(s) for s in shape)
+        _, wl = check_cube(design, np.zeros((1, 1, np.size(wl)), np.float32), wl)
+        self.design, self.shape, self.wavelengths = design, (h, w), wl
+        self.sampling, self.diffraction = sampling, bool(diffraction)
+        self.model = FrameModel(design, wl, sampling=sampling, trace_seed=SEEDS["scene"],
+                                diffraction=diffraction, progress=progress)
+
+    def electrons(self, cube) -> np.ndarray:
+        """Mean photo-electrons (Hs, Ws) float32 for a radiance scale of 1."""
+        cube = np.asarray(cube, np.float32)
+        if cube.shape[:2] != self.shape:
+            raise InputError(f"cube shape {cube.shape[:2]} differs from the renderer's {self.shape}")
+        return self.model.electrons(cube)
+
+    def exposure_for(self, cube, auto_exposure: float = 0.8) -> float:
+        """The radiance scale that puts the brightest pixel of ``cube`` at ``auto_exposure`` of
+        the full well (:func:`sim.frame.simulate_frame`'s rule)."""
+        from sim.frame import exposure
+
+        return exposure(self.electrons(cube), self.design, auto_exposure)
+
+    def render(self, cube, *, radiance_scale: float, seed=0, noise: bool = True) -> np.ndarray:
+        """Raw frame (Hs, Ws) float32 in DN; ``seed`` (int or sequence) seeds the noise."""
+        from sim.sensor import digitise
+
+        ne = self.electrons(cube)
+        ne *= np.float32(radiance_scale)
+        return digitise(ne, self.design, rng=np.random.default_rng(seed), noise=noise)
+
+    def metadata(self, *, radiance_scale: float, seed: int, noise: bool) -> dict:
+        """The sidecar of :func:`sim.frame.simulate_frame` for these settings."""
+        from sim.frame import frame_metadata
+
+        return frame_metadata(self.design, self.wavelengths, wavelength_nm=None, seed=seed,
+                              method="transport", spp=None, trace_seed=self.model.trace_seed,
+                              scene_shape=self.shape, sampling=self.sampling,
+                              diffraction=self.diffraction, noise=noise,
+                              radiance_scale=radiance_scale)
+
+
+def animation(scene, design, *, n_frames=None, fps: float = 10.0, subframes: int = 1,
+              **scene_params):
+    """A moving scene (:func:`scenes.animated.get_animation`: ``colorwheel``,
+    ``moving_object`` or a folder of cubes) on the design's scene grid and bands, each frame
+    integrated over the design's exposure."""
+    from scenes.animated import get_animation
+    from sim.frame import scene_grid
+
+    return get_animation(scene, scene_grid(design), design.wavelengths, n_frames=n_frames,
+                         fps=fps, exposure_ms=design.exposure_ms, subframes=subframes,
+                         **scene_params)
+
+
+# ------------------------------------------------------------------------------- bands
+def band_mean_dispersion(design, wavelengths, samples: int = 32) -> np.ndarray:
+    r"""(L,) the design's dispersion :math:`\varphi` averaged over every band's interval (px),
+    at ``samples`` wavelengths a band: the counterpart of
+    :func:`recon.calibration.band_mean_positions`."""
+    from recon.calibration.dispersion import band_wavelengths
+
+    lam = band_wavelengths(band_intervals(design, np.asarray(wavelengths, dtype=np.float64)),
+                           samples)
+    return design.dispersion_px_at(lam.ravel()).reshape(lam.shape).mean(axis=1)
+
+
+# ------------------------------------------------------------------------------- housekeeping
+def cache_dir(folder=None) -> Path:
+    """``folder`` (created if missing), else the simulator's cache folder
+    (``$KALEIDOSPEC_CACHE`` or ``~/.cache/kaleidospec``): transports and calibrations."""
+    if folder is not None:
+        p = Path(folder)
+        p.mkdir(parents=True, exist_ok=True)
+        return p
+    from sim.transport import cache_dir as default
+
+    return default()
+
+
+def limit_threads(threads: int | None) -> None:
+    """Limit drjit's threads (a worker process of a parallel sweep must not oversubscribe the
+    cores); ``None`` or 0 leaves them."""
+    if threads:
+        import drjit as dr
+
+        from sim.variant import ensure_variant
+
+        ensure_variant()
+        dr.set_thread_count(int(threads))
+
+
+def release_transports() -> None:
+    """Drop the transports held in memory: each design point of a sweep has its own."""
+    from sim import transport
+
+    transport._MEMO.clear()

@@ -1,0 +1,149 @@
+r"""The calibrated forward models, in one place: their names, the default, the radiometric
+gains of each and the grid each reconstructs on.
+
+A calibration (:class:`recon.calibration.Calibration`) always holds the **shifted** model,
+the per-band mask images times the shifted scene (:class:`recon.operators.CalibratedCassi`),
+
+.. math:: g_k = \sum_l C_{k,l} \odot S_{o_{k,l}}\big(W_k f_l\big);
+
+it may also hold the **smeared** model, mask then shift and smear
+(:class:`recon.operators.SmearedCassi`), and the **footprint** model, every pixel's weights on
+the comb target's texels (:mod:`recon.calibration.footprint`), each with gains of its own.
+
+Adding a model takes: its name in :data:`MODELS` and its gains field in :data:`GAINS` (and in
+:data:`RUN_MODELS` if ``kaleidospec run --model`` offers it), the step that measures it in
+:data:`kaleidospec.calibrate.STEPS`, its fields in :class:`recon.calibration.Calibration` and
+its operator in :func:`recon.calibration.operator_from_calibration`.
+
+Grids.  The shifted and smeared models reconstruct on the calibration's grid: the centre view's
+box, with column 0 where the shortest band puts the view's first column, and only the part of
+the view that the mask codes (the guard stripe's columns are never measured).
+:func:`truth_on_grid` moves a ground truth onto it (a sub-pixel translation by
+:func:`grid_offset`, from the design and the calibrated box and offsets).  The footprint model
+reconstructs on the comb target's texel grid, which is the scenes' grid: no translation.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from recon.errors import InputError
+
+__all__ = ["MODELS", "DEFAULT_MODEL", "RUN_MODELS", "GAINS", "SMEAR_SAMPLES", "check_model",
+           "holds", "model_of", "model_gains", "cube_grid", "grid_offset", "truth_on_grid"]
+
+#: Every calibrated model a calibration can hold; the first (shifted) is in every calibration.
+MODELS = ("shifted", "smeared", "footprint")
+#: The model used when none is named.  Measured on ``small`` (noise-free frames, the model's
+#: prediction of the truth against the frame, mean over 5 views): shifted 6.8 % (ColorChecker)
+#: / 5.7 % (natural), smeared 11.3 % / 10.5 %.  The simulator's transport samples each pixel
+#: with 4 rays of random wavelength and position, so every band's white capture is a random
+#: realisation of the smear that the per-band mask images record exactly and a mean kernel
+#: cannot; "shifted" stays the default, "smeared" is calibrated when asked.
+DEFAULT_MODEL = "shifted"
+#: The models ``kaleidospec run`` and ``demo`` offer (``--model``); ``run`` calibrates each
+#: itself.
+RUN_MODELS = ("shifted", "footprint")
+#: The :class:`recon.calibration.Calibration` field of each model's radiometric gains.
+GAINS = {"shifted": "gains", "smeared": "smear_gains", "footprint": "footprint_gains"}
+#: Wavelengths sampled across each band for its smear (the smeared model's kernels, every
+#: band's mean position, and the design's counterpart :func:`grid_offset` compares it with).
+SMEAR_SAMPLES = 32
+
+
+def check_model(model: str) -> None:
+    """Raise :class:`recon.errors.InputError` unless ``--model`` names one of
+    :data:`RUN_MODELS`."""
+    if model not in RUN_MODELS:
+        raise InputError(f"--model must be one of {', '.join(RUN_MODELS)}, got {model!r}")
+
+
+def holds(cal, model: str) -> bool:
+    """Whether the calibration ``cal`` holds ``model`` (the shifted model always)."""
+    from recon.calibration.operator import resolve_model
+
+    try:
+        resolve_model(cal, model)
+    except InputError:
+        return False
+    return True
+
+
+def model_of(cal, model: str | None = None) -> str:
+    """The calibrated model that ``model`` names for ``cal``; ``None`` names
+    :data:`DEFAULT_MODEL` (were that ``"smeared"``: the best model the calibration holds).
+    A model the calibration lacks raises :class:`recon.errors.InputError`."""
+    from recon.calibration.operator import resolve_model
+
+    if model is None:
+        model = "auto" if DEFAULT_MODEL == "smeared" else DEFAULT_MODEL
+    return resolve_model(cal, model)
+
+
+def model_gains(cal, model: str | None = None) -> np.ndarray:
+    """(L,) the radiometric gains of the calibrated ``model``."""
+    own = getattr(cal, GAINS[model_of(cal, model)])
+    return cal.gains if own is None else own
+
+
+def cube_grid(cal, model: str | None = None) -> tuple[int, int]:
+    """(H, W) of the cubes the calibrated ``model`` reconstructs."""
+    if model_of(cal, model) == "footprint":
+        return tuple(int(v) for v in cal.footprint_grid)
+    return tuple(cal.cube_shape[:2])
+
+
+def grid_offset(design, cal, model: str | None = None) -> tuple[float, float]:
+    r"""Where the reconstruction grid sits on the ground-truth grid: truth pixel
+    :math:`(y_v + o_y,\ x_v + o_x)` is reconstruction pixel :math:`(y_v, x_v)`.
+
+    The footprint model's grid is the comb target's, the scenes' own grid: :math:`(0, 0)`.
+    Otherwise:
+
+    The centre view's cube column :math:`x` lands, in band :math:`l`, on sensor column
+    :math:`c_0 + x + \bar\varphi_l` on average over the band (design,
+    :func:`kaleidospec.instrument.band_mean_dispersion`); the calibration puts reconstruction
+    column :math:`x_v` on box column :math:`x_v + o_{0,l}` (the band's measured mean
+    position), i.e. sensor column :math:`b_0 + x_v + o_{0,l}`.  So :math:`o_x = b_0 - c_0 +
+    \overline{o_{0,l} - \bar\varphi_l}` (mean over bands), and :math:`o_y = b_{0,y} - r_0`.
+    """
+    from kaleidospec.instrument import band_mean_dispersion
+
+    if model_of(cal, model) == "footprint":
+        return 0.0, 0.0
+    if 0 not in cal.view_ids:
+        raise InputError("the calibration has no centre view")
+    i = cal.view_ids.index(0)
+    by, bx = (float(x) for x in cal.view_boxes[i, :2])
+    r0, c0 = design.code_region_px(0)[:2]
+    phi = band_mean_dispersion(design, cal.wavelengths, SMEAR_SAMPLES)
+    ox = bx - c0 + float(np.mean(cal.offsets[i] - phi))
+    return by - r0, ox
+
+
+def truth_on_grid(truth, design, cal, model: str | None = None) -> np.ndarray:
+    """The ground truth (v, v, L) resampled onto the grid of the calibrated ``model``
+    (:func:`cube_grid`).
+
+    A bilinear sub-pixel translation by :func:`grid_offset`; pixels beyond the truth's edge take
+    the edge value.
+    """
+    t = np.asarray(truth, dtype=np.float32)
+    (h, w), n = cube_grid(cal, model), cal.n_bands
+    if t.ndim != 3 or t.shape[2] != n:
+        raise InputError(f"truth shape {t.shape} does not have the calibration's {n} bands")
+    oy, ox = grid_offset(design, cal, model)
+    iy, ix = math.floor(oy), math.floor(ox)
+    fy, fx = np.float32(oy - iy), np.float32(ox - ix)
+    # Edge-padded so that the (h+1, w+1) window at (iy, ix) always exists.
+    pad_lo_y, pad_lo_x = max(0, -iy), max(0, -ix)
+    pad_hi_y = max(0, iy + h + 1 - t.shape[0])
+    pad_hi_x = max(0, ix + w + 1 - t.shape[1])
+    tp = np.pad(t, ((pad_lo_y, pad_hi_y), (pad_lo_x, pad_hi_x), (0, 0)), mode="edge")
+    y0, x0 = iy + pad_lo_y, ix + pad_lo_x
+    a = tp[y0:y0 + h + 1, x0:x0 + w + 1]
+    out = ((1 - fy) * ((1 - fx) * a[:h, :w] + fx * a[:h, 1:w + 1])
+           + fy * ((1 - fx) * a[1:h + 1, :w] + fx * a[1:h + 1, 1:w + 1]))
+    return np.ascontiguousarray(out, dtype=np.float32)

@@ -1,0 +1,357 @@
+r"""A raw frame and a calibration → cubes, for any number of views (and, for reference, the
+same frame through the design's exact operator).
+
+:func:`reconstruct_views` cuts the first ``n`` views (:data:`kaleidospec.instrument.VIEW_ORDER`:
+centre, left, right, top, bottom, corners) out of the frame and solves
+
+.. math:: \hat f = \arg\min_f \tfrac12 \|s\,(g/e) - s\,H\,\mathrm{diag}(c)^{-1} f\|^2
+                    + \tau\,\mathrm{TV}(f),
+
+with :math:`H` the calibrated ``model``'s operator (:mod:`kaleidospec.models`), :math:`c` its
+radiometric gains, :math:`e` the frame's exposure factor (``radiance_scale`` in its sidecar),
+so that :math:`\hat f` is in the scene cube's own units (comparable with the truth, and about
+[0, 1], the range the solvers' :math:`\tau` is meant for), and :math:`s` the scale that gives
+the rows of :math:`sH` unit mean squared norm (:func:`unit_row_scale`), so that one TV weight
+(:func:`tv_weight`) serves every model, operator and design.
+
+:func:`reconstruct_oracle` solves the same problem with the design's exact operator
+(:func:`kaleidospec.instrument.oracle_operator`) on the ground-truth grid: the reference that
+separates calibration errors from the reconstruction's own.  :class:`Reconstructor` sets either
+problem up once and solves many frames (a video), warm-started and optionally with a temporal
+term.  Every path ends in :func:`solve_views` (or the same scaling and weight in
+:class:`Reconstructor`), so a frame is reconstructed alike wherever it comes from.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from recon.errors import InputError
+
+__all__ = ["DEFAULTS", "TAU_PER_VIEW", "first_views", "tv_weight", "unit_row_scale",
+           "normalised", "solve_views", "calibrated_operator", "frame_measurements",
+           "reconstruct_views", "reconstruct_oracle", "Reconstructor"]
+
+#: Reconstruction defaults (measured on the ``small`` design, see the README / report).
+DEFAULTS = {"solver": "fista-tv", "iters": 100, "tau": None}
+#: Default TV weight per solver (per view for the solvers whose data term sums over views):
+#: measured on the ``small`` design, see :func:`tv_weight`.
+TAU_PER_VIEW = {"fista-tv": 0.005, "twist": 0.005}
+
+
+def first_views(n_views) -> tuple[int, ...]:
+    """The ids of the first ``n_views`` views (an integer 1..9) in the order views are added."""
+    from kaleidospec.instrument import VIEW_ORDER
+
+    try:
+        n = int(n_views)
+    except (TypeError, ValueError):
+        raise InputError(f"the number of views must be an integer 1..9, got {n_views!r}") from None
+    if n != n_views or not 1 <= n <= 9:
+        raise InputError(f"the number of views must be an integer 1..9, got {n_views!r}")
+    return VIEW_ORDER[:n]
+
+
+def _check_calibrated(cal, view_ids) -> None:
+    """Raise :class:`recon.errors.InputError` unless the calibration holds every view."""
+    missing = [v for v in view_ids if v not in cal.view_ids]
+    if missing:
+        raise InputError(f"view(s) {missing} missing: the calibration has views "
+                         f"{list(cal.view_ids)} (recalibrate with the views the run needs)")
+
+
+def tv_weight(solver, tau, n_views):
+    """The TV weight: ``tau`` if given, else the solver's default per view × the views (the
+    data term sums over the views' pixels; GAP-TV's projection step does not, so its weight
+    is per view)."""
+    if tau is not None:
+        return tau
+    from recon.app import default_tau
+
+    base = TAU_PER_VIEW.get(solver, default_tau(solver))
+    return base if solver == "gap-tv" else base * int(n_views)
+
+
+def unit_row_scale(op) -> float:
+    r"""The :math:`s` that makes the mean squared norm of the measured rows of :math:`sH` one.
+
+    The data term :math:`\tfrac12\|s g - s H f\|^2` then weighs a measurement pixel alike
+    whatever the exposure units of :math:`H`, so one TV weight :math:`\tau` serves the
+    calibrated and the exact operator, the ``small`` and the ``paper`` design.
+    """
+    mean = getattr(op, "mean_row_norm_sq", None)
+    if mean is not None:        # the exact operator estimates it (its row norms are costly)
+        m = float(mean())
+        return 1.0 if m <= 0 else 1.0 / math.sqrt(m)
+    rn = np.asarray(op.row_norms_sq(), dtype=np.float64)
+    pos = rn[rn > 0]
+    return 1.0 if pos.size == 0 else 1.0 / math.sqrt(float(pos.mean()))
+
+
+def normalised(op, g):
+    """``(s·H, s·g)`` with :math:`s` from :func:`unit_row_scale`."""
+    from recon.operators import ScaledOperator
+
+    s = unit_row_scale(op)
+    return ScaledOperator(op, s), (g * np.float32(s)).astype(g.dtype, copy=False)
+
+
+def solve_views(op, g, n_views: int, *, solver: str = DEFAULTS["solver"],
+                iters: int = DEFAULTS["iters"], tau=None, x0=None, truth=None, wavelengths=None,
+                progress: bool = False):
+    """Reconstruct measurements ``g`` of ``n_views`` views through ``op`` the way every path of
+    the application does: operator and data brought to unit mean row norm (:func:`normalised`),
+    the TV weight from :func:`tv_weight`, then :func:`recon.app.reconstruct`.  Adds
+    ``seconds``."""
+    from recon.app import reconstruct
+
+    op, g = normalised(op, g)
+    t0 = time.perf_counter()
+    tau = tv_weight(solver, tau, n_views)
+    cube, info = reconstruct(g, op, solver=solver, iters=iters, tau=tau, x0=x0, truth=truth,
+                             wavelengths=wavelengths, progress=progress)
+    info["seconds"] = time.perf_counter() - t0
+    return cube, info
+
+
+# ------------------------------------------------------------------------------- calibrated
+def calibrated_operator(cal, view_ids, model: str | None = None):
+    """:func:`recon.calibration.operator_from_calibration` with the gains folded in: the
+    operator maps a cube in radiance (cube) units to exposure-normalised DN.
+
+    ``model`` is one of :data:`kaleidospec.models.MODELS` or ``None``
+    (:func:`kaleidospec.models.model_of`).
+    """
+    from kaleidospec.models import model_gains, model_of
+    from recon.calibration.operator import operator_from_calibration
+
+    kind = model_of(cal, model)
+    gains = model_gains(cal, kind)
+    if not np.all(gains > 0):
+        raise InputError("the calibration's radiometric gains must be positive")
+    return operator_from_calibration(cal, view_ids, model=kind, band_scale=1.0 / gains)
+
+
+def frame_measurements(frame, metadata, cal, view_ids) -> np.ndarray:
+    """The (K, Hv, Wm) views ``view_ids`` cut out of a raw frame with the calibration's boxes,
+    divided by the frame's exposure factor ``radiance_scale`` (1 when the sidecar has none):
+    the calibration divided its captures' out, so frames and calibration share one
+    radiometric scale."""
+    from recon.calibration import measurements
+
+    s = (metadata or {}).get("radiance_scale")
+    s = 1.0 if s is None else float(s)
+    if not (math.isfinite(s) and s > 0):
+        raise InputError(f"the frame's radiance_scale must be positive, got {s}")
+    return measurements(frame, cal, view_ids, metadata=metadata) / np.float32(s)
+
+
+def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = DEFAULTS["solver"],
+                      iters: int = DEFAULTS["iters"], tau=None, x0=None, truth=None,
+                      progress: bool = False, design=None, model: str | None = None):
+    """Reconstruct from the first ``n_views`` views of a raw frame with a calibration.
+
+    Parameters
+    ----------
+    frame : (Hs, Ws) array
+        Raw frame (DN).
+    metadata : dict
+        Its sidecar: ``design_hash`` must match the calibration's; ``radiance_scale`` (the
+        exposure factor) is divided out.
+    cal : recon.calibration.Calibration
+    n_views : int
+        1..9, views taken in the order centre, left, right, top, bottom, corners; all must be
+        in the calibration.
+    solver, iters, tau, x0, progress
+        As for :func:`recon.app.reconstruct`.
+    truth : (v, v, L) or (H, W, L) array, optional
+        Ground truth on the design's grid (moved onto the model's grid
+        :func:`kaleidospec.models.cube_grid` with :func:`kaleidospec.models.truth_on_grid`,
+        using ``design`` or the design in the sidecar) or already on it.
+    model : str, optional
+        The calibrated forward model (:func:`calibrated_operator`).
+
+    Returns
+    -------
+    cube : (H, W, L) float32, on :func:`kaleidospec.models.cube_grid`, cube units
+    info : dict
+        :func:`recon.app.reconstruct`'s, plus ``view_ids``, ``seconds`` and, with a truth,
+        ``metrics`` and ``truth_grid`` (the truth on the reconstruction grid).
+    """
+    from kaleidospec.instrument import design_of
+    from kaleidospec.models import cube_grid, truth_on_grid
+    from recon.calibration import check_design
+
+    ids = first_views(n_views)
+    check_design(cal, metadata)
+    _check_calibrated(cal, ids)
+    g = frame_measurements(frame, metadata, cal, ids)
+    tg = None
+    if truth is not None:
+        t = np.asarray(truth, dtype=np.float32)
+        tg = t if t.shape == cube_grid(cal, model) + (cal.n_bands,) else \
+            truth_on_grid(t, design_of(metadata, design), cal, model)
+    cube, info = solve_views(calibrated_operator(cal, ids, model), g, len(ids), solver=solver,
+                             iters=iters, tau=tau, x0=x0, truth=tg, wavelengths=cal.wavelengths,
+                             progress=progress)
+    info["view_ids"] = list(ids)
+    if tg is not None:
+        info["truth_grid"] = tg
+    return cube, info
+
+
+# ------------------------------------------------------------------------------- exact operator
+def reconstruct_oracle(frame, metadata, design, n_views, *, solver: str = DEFAULTS["solver"],
+                       iters: int = DEFAULTS["iters"], tau=None, truth=None,
+                       progress: bool = False, inversion: bool = True, op=None):
+    """Reconstruct a frame with the design's exact operator
+    (:func:`kaleidospec.instrument.oracle_operator`, or ``op``), on the ground-truth grid.
+    Returns ``(cube (v, v, L), info)``."""
+    from kaleidospec.instrument import oracle_measurements, oracle_operator
+
+    first_views(n_views)
+    g = oracle_measurements(frame, metadata, design, n_views)
+    if op is None:
+        op = oracle_operator(design, n_views, inversion=inversion)
+    return solve_views(op, g, n_views, solver=solver, iters=iters, tau=tau, truth=truth,
+                       wavelengths=design.wavelengths, progress=progress)
+
+
+# ------------------------------------------------------------------------------- many frames
+class Reconstructor:
+    r"""One frame's inverse problem, set up once and reused for every frame of a sequence.
+
+    Two kinds (constructors):
+
+    - :meth:`calibrated` — what the instrument does: the problem of :func:`reconstruct_views`
+      (operator :func:`calibrated_operator`, gains folded in; the measurement over the frame's
+      ``radiance_scale``), on the calibration's grid;
+    - :meth:`oracle` — the exact operator of the design
+      (:func:`kaleidospec.instrument.oracle_operator`) on the ground-truth grid, to separate
+      the engine's behaviour from calibration errors.
+
+    Either way the operator and GAP-TV's step :math:`1/\lVert\Phi^{-1/2}H\rVert^2` are
+    computed once, not per frame.
+
+    Parameters
+    ----------
+    op : LinearOperator
+        ``(L, H, W) -> (K, Hv, Wm)``.
+    measure : callable
+        ``measure(frame, metadata) -> g`` (K, Hv, Wm) float32.
+    solver : str
+        A :mod:`recon.solvers` name.
+    tau : float, optional
+        TV weight (:func:`tv_weight`'s default if None).
+    threads : int, optional
+        Threads of the TV prox (GAP-TV and the temporal variant).
+    to_grid : callable, optional
+        ``to_grid(truth (v, v, L), metadata) -> truth on the operator's grid``.
+    offset : callable, optional
+        ``offset(metadata) -> (oy, ox)``: where the operator's grid sits on the truth's.
+    """
+
+    def __init__(self, op, measure, *, solver: str = "gap-tv", tau: float | None = None,
+                 threads: int | None = None, to_grid=None, offset=None, kind: str = ""):
+        from recon.operators import ScaledOperator
+
+        # The scaling and TV weight of solve_views, so that a video frame is reconstructed
+        # exactly as `kaleidospec run` reconstructs a still.
+        scale = unit_row_scale(op)
+        self.op = ScaledOperator(op, scale)
+        self._measure = lambda frame, meta: measure(frame, meta) * np.float32(scale)
+        self.solver = solver
+        self.tau = tv_weight(solver, tau, op.oshape[0])
+        self.threads = threads
+        self._to_grid = to_grid
+        self._offset = offset
+        self.kind = kind
+        self._step = None
+
+    @classmethod
+    def calibrated(cls, cal, n_views: int, **kw) -> "Reconstructor":
+        """From a calibration: the first ``n_views`` views (centre, left, right, top, ...)."""
+        from kaleidospec.instrument import design_of
+        from kaleidospec.models import grid_offset, truth_on_grid
+
+        ids = first_views(n_views)
+        _check_calibrated(cal, ids)
+        # Gains folded into the masks: the cube comes out in the scene's radiance units.
+        op = calibrated_operator(cal, ids)
+        return cls(op, lambda frame, meta: frame_measurements(frame, meta, cal, ids),
+                   to_grid=lambda t, meta: truth_on_grid(t, design_of(meta), cal),
+                   offset=lambda meta: grid_offset(design_of(meta), cal), kind="calibrated",
+                   **kw)
+
+    @classmethod
+    def oracle(cls, design, n_views: int, **kw) -> "Reconstructor":
+        """The exact operator of ``design`` (on the ground-truth grid)."""
+        from kaleidospec.instrument import oracle_measurements, oracle_operator
+
+        op = oracle_operator(design, n_views)
+        return cls(op, lambda frame, meta: oracle_measurements(frame, meta, design, n_views),
+                   kind="oracle", **kw)
+
+    def measurement(self, frame, metadata) -> np.ndarray:
+        """The (K, Hv, Wm) measurement in the operator's units."""
+        return self._measure(frame, metadata)
+
+    def truth_on_grid(self, truth, metadata) -> np.ndarray:
+        """The ground truth (v, v, L) on the reconstruction grid."""
+        t = np.asarray(truth, np.float32)
+        want = (self.op.ishape[1], self.op.ishape[2], self.op.ishape[0])
+        if t.shape == want or self._to_grid is None:
+            return t
+        return self._to_grid(t, metadata)
+
+    def grid_offset(self, metadata) -> tuple[float, float]:
+        """(oy, ox): reconstruction pixel (y, x) is truth pixel (y + oy, x + ox)."""
+        return (0.0, 0.0) if self._offset is None else self._offset(metadata)
+
+    def solver_options(self) -> dict:
+        """GAP-TV's step (computed on first use) and prox threads."""
+        opts = {}
+        if self.solver == "gap-tv":
+            if self._step is None:
+                from recon.solvers.base import preconditioned_norm_sq, safe_reciprocal
+
+                phi_inv = safe_reciprocal(self.op.row_norms_sq(), np.float32)
+                self._step = 1.0 / preconditioned_norm_sq(self.op, phi_inv, dtype=np.float32)
+            opts["step"] = self._step
+            if self.threads is not None:
+                opts["threads"] = self.threads
+        return opts
+
+    def solve(self, g, *, iters: int, x0=None, mu: float = 0.0, callback=None
+              ) -> tuple[np.ndarray, dict]:
+        r"""Reconstruct one frame → (cube (H, W, L), info).
+
+        ``x0`` (H, W, L) warm-starts the solver; ``mu`` > 0 (with ``x0``) adds the temporal
+        term :math:`\mu\lVert f - x_0\rVert_1` (GAP-TV only, :mod:`recon.temporal`).
+        """
+        t0 = time.perf_counter()
+        x0_bm = None if x0 is None else np.ascontiguousarray(
+            np.moveaxis(np.asarray(x0, np.float32), 2, 0))
+        g = np.asarray(g, np.float32)
+        if mu > 0 and x0_bm is not None:
+            from recon.temporal import gap_tv_temporal
+
+            if self.solver != "gap-tv":
+                raise InputError("the temporal TV term is implemented for gap-tv only")
+            res = gap_tv_temporal(self.op, g, ref=x0_bm, mu=float(mu), iters=int(iters),
+                                  tau=self.tau, x0=x0_bm, callback=callback,
+                                  **self.solver_options())
+        else:
+            from recon.solvers import solve
+
+            mu = 0.0
+            res = solve(self.solver, self.op, g, iters=int(iters), tau=self.tau, x0=x0_bm,
+                        callback=callback, **self.solver_options())
+        cube = np.ascontiguousarray(np.moveaxis(res.x, 0, 2), dtype=np.float32)
+        if not np.all(np.isfinite(cube)):
+            raise RuntimeError(f"solver {self.solver!r} diverged (non-finite values)")
+        return cube, {"iters": int(res.iterations), "wall_seconds": time.perf_counter() - t0,
+                      "tau": self.tau, "mu": float(mu)}
