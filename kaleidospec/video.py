@@ -453,7 +453,7 @@ def _check_manifest(lay: VideoLayout, config: dict) -> dict | None:
 
 def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | None = None,
               frames: int | None = None, fps: float = 10.0, views: int = 5,
-              solver: str = "gap-tv", iters: int = 15, cold_iters: int = 50,
+              solver: str | None = None, iters: int = 15, cold_iters: int = 50,
               tau: float | None = None, temporal: float = 0.0, seed: int = 0,
               noise: bool = True, subframes: int = 1, scene_params: dict | None = None,
               segment_frames: int | None = None, workers: int | None = None,
@@ -476,7 +476,11 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
         Views used for reconstruction (1, 2, 3, 5, …; the first of centre, left, right, top,
         bottom).
     solver, iters, cold_iters, tau
-        Solver, iterations of warm-started and of cold-started frames, TV weight.
+        Solver (default GAP-TV with the calibration, FISTA-TV with the exact operator: GAP-TV
+        projects onto each measurement row with :math:`\mathrm{diag}(HH^\top)^{-1}`, exact
+        only when rows share no voxel, as in the shifted model; the exact operator's pixels
+        share texels through their footprints, the smear and the blur, and GAP-TV diverges
+        on it), iterations of warm-started and of cold-started frames, TV weight.
     temporal : float
         Weight μ of the temporal term (0: off).
     seed, noise : sensor noise.
@@ -507,8 +511,16 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
     from kaleidospec.report import write_json
     from recon.app import solver_names
 
+    if operator not in ("calibrated", "oracle"):
+        raise InputError(f"--operator must be calibrated or oracle, got {operator!r}")
+    if solver is None:
+        solver = "fista-tv" if operator == "oracle" else "gap-tv"
     if solver not in solver_names():
         raise InputError(f"--solver must be one of {', '.join(solver_names())}, got {solver!r}")
+    if operator == "oracle" and solver == "gap-tv":
+        raise InputError("gap-tv needs measurement rows that share no voxel; the exact "
+                         "operator's pixels share texels (footprints, smear, blur): use "
+                         "--solver fista-tv or twist with --operator oracle")
     for name, v, lo in (("iters", iters, 1), ("cold-iters", cold_iters, 1), ("views", views, 1)):
         if isinstance(v, bool) or int(v) != v or v < lo:
             raise InputError(f"--{name} must be an integer >= {lo}, got {v!r}")
@@ -516,8 +528,6 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
         raise InputError(f"--temporal must be >= 0, got {temporal}")
     if temporal > 0 and solver != "gap-tv":
         raise InputError("--temporal is implemented for the gap-tv solver only")
-    if operator not in ("calibrated", "oracle"):
-        raise InputError(f"--operator must be calibrated or oracle, got {operator!r}")
     if video_format not in ("gif", "webp"):
         raise InputError(f"--format must be gif or webp, got {video_format!r}")
     if scheduler is not None and not str(scheduler).startswith(("tcp://", "tls://", "inproc://",

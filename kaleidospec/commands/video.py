@@ -48,7 +48,8 @@ def video(
     iters: int = typer.Option(15, "--iters", help="Iterations of a warm-started frame."),
     cold_iters: int = typer.Option(50, "--cold-iters", help="Iterations of a segment's first "
                                    "(cold-started) frame."),
-    solver: str = typer.Option("gap-tv", "--solver", help="gap-tv, twist or fista-tv."),
+    solver: Optional[str] = typer.Option(None, "--solver", help="gap-tv (default), twist or "
+                                         "fista-tv (the default with --operator oracle)."),
     tau: Optional[float] = typer.Option(None, "--tau", help="TV weight (solver default)."),
     temporal: float = typer.Option(0.0, "--temporal", help="Weight of the temporal TV term "
                                    "|f_t - f_(t-1)|_1 (0: off; gap-tv only)."),
