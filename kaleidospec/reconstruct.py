@@ -213,11 +213,23 @@ def reconstruct_oracle(frame, metadata, design, n_views, *, solver: str = DEFAUL
     from kaleidospec.instrument import oracle_measurements, oracle_operator
 
     first_views(n_views)
+    check_oracle_solver(solver)
     g = oracle_measurements(frame, metadata, design, n_views)
     if op is None:
         op = oracle_operator(design, n_views, inversion=inversion)
     return solve_views(op, g, n_views, solver=solver, iters=iters, tau=tau, truth=truth,
                        wavelengths=design.wavelengths, progress=progress)
+
+
+def check_oracle_solver(solver: str) -> str:
+    """``solver`` if it can reconstruct with the exact operator: GAP-TV projects onto each
+    measurement row with diag(HHᵀ)⁻¹, exact only when rows share no voxel (the shifted model);
+    the exact operator's pixels share texels (footprints, smear, blur) and GAP-TV diverges."""
+    if solver == "gap-tv":
+        raise InputError("gap-tv cannot reconstruct with the exact operator (its measurement "
+                         "rows share texels); use fista-tv or twist, or leave the oracle out "
+                         "(--no-oracle)")
+    return solver
 
 
 # ------------------------------------------------------------------------------- many frames

@@ -88,7 +88,8 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
     from kaleidospec import evaluate, instrument, report
     from kaleidospec.calibrate import calibrate, is_cached
     from kaleidospec.models import cube_grid, model_gains, model_of, truth_on_grid
-    from kaleidospec.reconstruct import reconstruct_oracle, reconstruct_views
+    from kaleidospec.reconstruct import (check_oracle_solver, reconstruct_oracle,
+                                         reconstruct_views)
     from recon.calibration import check_design
     from recon.io.atomic import atomic_dir, check_output, output_parents
     from recon.io.cubes import write_cube
@@ -96,6 +97,8 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
     from recon.report import band_montage, spectra_plot, srgb_image, write_png
 
     counts = parse_views(views)
+    if oracle:
+        check_oracle_solver(solver)
     if widen:
         design = instrument.design_for_views(design, max(counts))
     out_dir = Path(out_dir)

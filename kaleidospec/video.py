@@ -517,10 +517,10 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
         solver = "fista-tv" if operator == "oracle" else "gap-tv"
     if solver not in solver_names():
         raise InputError(f"--solver must be one of {', '.join(solver_names())}, got {solver!r}")
-    if operator == "oracle" and solver == "gap-tv":
-        raise InputError("gap-tv needs measurement rows that share no voxel; the exact "
-                         "operator's pixels share texels (footprints, smear, blur): use "
-                         "--solver fista-tv or twist with --operator oracle")
+    if operator == "oracle":
+        from kaleidospec.reconstruct import check_oracle_solver
+
+        check_oracle_solver(solver)
     for name, v, lo in (("iters", iters, 1), ("cold-iters", cold_iters, 1), ("views", views, 1)):
         if isinstance(v, bool) or int(v) != v or v < lo:
             raise InputError(f"--{name} must be an integer >= {lo}, got {v!r}")
