@@ -11,8 +11,16 @@ runs :mod:`recon.calibration` on them, as a lab would with its targets:
 4. **geometry** — homographies to the centre view from the checkerboard at 550 nm;
 5. the steps of the other calibrated models asked for (:data:`STEPS`: the smeared model's view
    masks, the footprint model's comb captures);
-6. **radiometry** — per model, the ColorChecker reconstructed with provisional gains and the
-   per-band gains :math:`c_l` fitted to its patches' reference radiance (least squares).
+6. **radiometry** — per model, the per-band gains :math:`c_l` (radiance per DN/s).  By
+   default (:data:`RADIOMETRY` ``"flat"``) they come from the flat field: the band-pass whites
+   are a source of known radiance (an integrating sphere's, in a lab), so a white's level per
+   unit exposure is the gain of an open pixel (the comb targets' lit texels, of known radiance
+   too, give the footprint model's).  ``"colorchecker"`` refits them as the paper does: the
+   ColorChecker reconstructed with those gains, per-band least squares of its patches against
+   their reference radiance.  That refit is biased by the reconstruction itself (measured on
+   ``small``, 5 views: it moves the gains by −12 % to +45 % and costs 1.3 dB (shifted) and
+   1.8 dB (footprint) on the ColorChecker, 0.5 dB on the natural scene;
+   ``docs/figures.md``), so the ColorChecker is a check here, not a fit.
 
 The result (:class:`recon.calibration.Calibration`) is one ``.npz`` + ``.json`` in the cache
 folder (:func:`calibration_file`), keyed by the design's hash and the calibration code's
@@ -29,15 +37,18 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["MASK_FLOOR", "BOX_MARGIN_X", "RADIOMETRY_VIEWS", "STEPS", "Measured", "calibrate",
-           "calibrate_from_captures", "calibration_file", "is_cached"]
+__all__ = ["MASK_FLOOR", "BOX_MARGIN_X", "RADIOMETRY", "RADIOMETRY_VIEWS", "STEPS", "Measured",
+           "calibrate", "calibrate_from_captures", "calibration_file", "is_cached"]
 
 #: Calibrated mask values below this (fraction of the white level) are taken as chrome (0).
 MASK_FLOOR = 0.05
 #: Columns added (at most: never so many that boxes overlap) on each side of a view's lit extent:
 #: a view's outermost columns are lit by one band only and fall under the box threshold.
 BOX_MARGIN_X = 2
-#: Views used to reconstruct the ColorChecker for the radiometric gains.
+#: Where the radiometric gains come from: "flat" (the flat field's known radiance) or
+#: "colorchecker" (refitted on the reconstructed chart; module notes).
+RADIOMETRY = "flat"
+#: Views used to reconstruct the ColorChecker for the "colorchecker" radiometry.
 RADIOMETRY_VIEWS = 5
 
 
@@ -106,7 +117,7 @@ def _footprints(cal, m: Measured) -> dict:
 #: The steps of the calibrated models beyond the shifted one (:data:`kaleidospec.models.MODELS`),
 #: in the order they run: model → (progress label, ``step(cal, measured) -> fields``).  A
 #: step returns the :class:`recon.calibration.Calibration` fields its model adds, its
-#: provisional gains among them; the radiometry then refits those gains.
+#: flat-field gains among them (the radiometry keeps them, or refits them on the ColorChecker).
 STEPS: dict[str, tuple[str, Callable[..., dict]]] = {
     "smeared": ("view masks", _smeared),
     "footprint": ("footprints", _footprints),
@@ -138,7 +149,7 @@ def calibrate(design, *, model: str | None = None, cache_dir=None, progress: boo
     Returns
     -------
     recon.calibration.Calibration
-        ``view_ids`` = the design's views (sorted), gains fitted on the ColorChecker.
+        ``view_ids`` = the design's views (sorted), gains from the flat field (:data:`RADIOMETRY`).
     """
     from kaleidospec.instrument import cache_dir as folder
     from kaleidospec.models import DEFAULT_MODEL, holds
@@ -156,15 +167,16 @@ def calibrate(design, *, model: str | None = None, cache_dir=None, progress: boo
 
 
 def calibrate_from_captures(design, *, models=None, repeats: int = 4, progress: bool = False,
-                            captures=None):
+                            captures=None, radiometry: str | None = None):
     """Render the captures (unless given) and run every calibration step; nothing is cached.
 
     ``models`` names the calibrated models to measure (default
     :data:`kaleidospec.models.DEFAULT_MODEL`); the shifted model is always measured, the
-    others by their :data:`STEPS`, each with gains of its own.
+    others by their :data:`STEPS`, each with gains of its own.  ``radiometry`` is
+    :data:`RADIOMETRY`'s choice by default.
     """
     from kaleidospec.instrument import CHECKER_NM, band_intervals, render_captures
-    from kaleidospec.models import DEFAULT_MODEL, GAINS, MODELS, SMEAR_SAMPLES
+    from kaleidospec.models import DEFAULT_MODEL, GAINS, MODELS, SMEAR_SAMPLES, model_gains
     from kaleidospec.report import progress_bar
     from recon.calibration import (airy_radius_px, build_calibration, find_view_boxes,
                                    fit_dispersion, line_centroids, mask_images,
@@ -173,6 +185,9 @@ def calibrate_from_captures(design, *, models=None, repeats: int = 4, progress: 
     from recon.calibration.mask import view_stack, white_levels
     from recon.errors import InputError
 
+    radiometry = RADIOMETRY if radiometry is None else radiometry
+    if radiometry not in ("flat", "colorchecker"):
+        raise InputError(f"radiometry must be 'flat' or 'colorchecker', got {radiometry!r}")
     wanted = {DEFAULT_MODEL} if models is None else set(models)
     unknown = sorted(wanted - set(MODELS))
     if unknown:
@@ -229,9 +244,10 @@ def calibrate_from_captures(design, *, models=None, repeats: int = 4, progress: 
         for name in extra:
             cal = dataclasses.replace(cal, **STEPS[name][1](cal, measured))
             bar.update()
-        # Radiometry, per model: reconstruct the ColorChecker with the provisional gains,
-        # compare its patches with their reference radiance (reflectance x D65, cube units).
-        gains = {m: _radiometry(design, caps, cal, m) for m in MODELS
+        # Radiometry, per model: the flat field's (the provisional gains, kept), or refitted
+        # on the ColorChecker (RADIOMETRY).
+        gains = {m: (_radiometry(design, caps, cal, m) if radiometry == "colorchecker"
+                     else model_gains(cal, m)) for m in MODELS
                  if m == "shifted" or m in extra}
         bar.update()
     finally:
