@@ -459,7 +459,7 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
               segment_frames: int | None = None, workers: int | None = None,
               scheduler: str | None = None, video_format: str = "gif",
               operator: str = "calibrated", progress: bool = True, cache_dir=None) -> dict:
-    """Render and reconstruct a dynamic scene; resumes an interrupted run in ``out_dir``.
+    r"""Render and reconstruct a dynamic scene; resumes an interrupted run in ``out_dir``.
 
     Parameters
     ----------
