@@ -328,9 +328,10 @@ class Reconstructor:
         opts = {}
         if self.solver == "gap-tv":
             if self._step is None:
-                from recon.solvers.base import preconditioned_norm_sq, safe_reciprocal
+                from recon.solvers.base import (preconditioned_norm_sq, row_norms_sq,
+                                                safe_reciprocal)
 
-                phi_inv = safe_reciprocal(self.op.row_norms_sq(), np.float32)
+                phi_inv = safe_reciprocal(row_norms_sq(self.op), np.float32)
                 self._step = 1.0 / preconditioned_norm_sq(self.op, phi_inv, dtype=np.float32)
             opts["step"] = self._step
             if self.threads is not None:

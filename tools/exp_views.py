@@ -57,6 +57,11 @@ TARGET_GAIN_DB = 3.0
 #: A view count may cost this much global PSNR against the previous one and still "rise"
 #: (solver tolerance; the overall rise from the first to the last count is required as well).
 MONOTONE_SLACK_DB = 0.1
+#: Calibrated within this much of the oracle (global PSNR): at every view count on ``small``,
+#: at 5 views on ``paper`` (the issue's targets).
+ORACLE_GAP_DB = 1.0
+#: Mean CIEDE2000 of the ColorChecker's patch spectra with 5 views.
+PATCH_DELTA_E = 2.0
 
 
 # ---------------------------------------------------------------------------- shared helpers
@@ -159,11 +164,15 @@ def run_scene(scene: str, design, cal, views, *, solver, iters, tau, seed, noise
     transport the frame was rendered with, which knows the simulator's Monte Carlo draw (which
     texel and wavelength each of a pixel's rays met).  With ``retrace`` (a seed) also with the
     same optics traced afresh with that seed: the instrument's physics without the draw."""
+    from kaleidospec.evaluate import colorchecker_patches, patch_delta_e2000
     from kaleidospec.instrument import oracle_operator, render_scene
     from kaleidospec.reconstruct import reconstruct_oracle, reconstruct_views
 
     t0 = time.perf_counter()
     frame, meta, truth, wl = render_scene(scene, design, seed=seed, noise=noise)
+    # The chart's patches as a spectroradiometer would read them (mean spectra, CIEDE2000).
+    patches = list(colorchecker_patches(design, cal, model).values()) \
+        if str(scene) == "colorchecker" else []
     render_s = time.perf_counter() - t0
     rows, cubes = [], {}
     for n in views:
@@ -174,6 +183,8 @@ def run_scene(scene: str, design, cal, views, *, solver, iters, tau, seed, noise
         grid = info["truth_grid"]
         row = {"views": n, **metrics_of(cube, grid, wl), "seconds": float(info.get("seconds", 0.0)),
                "tau": finite(info.get("tau")), "iters": int(info.get("iters", iters))}
+        if patches:
+            row["delta_e2000_patches"] = patch_delta_e2000(cube, grid, patches, wl)
         if oracle:
             ocube, oinfo = reconstruct_oracle(frame, meta, design, n, solver=solver,
                                               iters=iters, tau=tau, progress=progress)
@@ -188,6 +199,8 @@ def run_scene(scene: str, design, cal, views, *, solver, iters, tau, seed, noise
         rows.append(row)
         cubes[n] = cube
         extra = f"  oracle {fmt(row['oracle']['psnr'])} dB" if oracle else ""
+        if patches:
+            extra += f"  ΔE00 per patch {fmt(row['delta_e2000_patches'])}"
         if retrace is not None:
             extra += f"  retraced {fmt(row['retraced']['psnr'])} dB"
         print(f"  {scene_label(scene)}: {n} view(s)  PSNR {fmt(row['psnr'])} dB  "
@@ -197,21 +210,38 @@ def run_scene(scene: str, design, cal, views, *, solver, iters, tau, seed, noise
         (grid, wl, cubes)
 
 
-def check_targets(results: dict, views) -> dict:
+def check_targets(results: dict, views, design: str = "small") -> dict:
     """The issue's targets on the measured numbers: {name: {"ok": bool, "detail": str}}.
 
     With oracle numbers the same targets are also checked on them (labelled "oracle"), and
-    the calibrated reconstruction is compared with the oracle one (within 1 dB)."""
+    the calibrated reconstruction is compared with the oracle one (within
+    :data:`ORACLE_GAP_DB`: at every view count, on ``paper`` at 5 views).  On ``paper`` every
+    view count must also beat the paper's Fig. 7 in its own protocol."""
     out = {}
     for label, res in results.items():
         rows = res["rows"]
         if all("oracle" in r for r in rows):
             orows = [{"views": r["views"], **r["oracle"]} for r in rows]
             out.update(_targets(f"{label} (oracle)", orows, views))
-            gaps = [r["oracle"]["psnr"] - r["psnr"] for r in rows]
-            out[f"{label}: calibrated within 1 dB of the oracle"] = {
-                "ok": bool(max(gaps) <= 1.0),
-                "detail": "oracle − calibrated " + ", ".join(f"{g:+.2f}" for g in gaps) + " dB"}
+            gaps = {r["views"]: r["oracle"]["psnr"] - r["psnr"] for r in rows}
+            judged = [g for n, g in gaps.items() if design != "paper" or n == 5]
+            if judged:
+                where = " at 5 views" if design == "paper" else ""
+                out[f"{label}: calibrated within {ORACLE_GAP_DB:g} dB of the oracle{where}"] = {
+                    "ok": bool(max(judged) <= ORACLE_GAP_DB),
+                    "detail": "oracle − calibrated " + ", ".join(
+                        f"{g:+.2f}" for g in gaps.values()) + " dB"}
+        if design == "paper":
+            below = [f"{r['views']}: {r['psnr_bandwise']:.2f} < {PAPER_FIG7[r['views']]:.2f}"
+                     for r in rows if r["views"] in PAPER_FIG7
+                     and not r["psnr_bandwise"] > PAPER_FIG7[r["views"]]]
+            out[f"{label}: above the paper's Fig. 7 at every view count (its protocol)"] = {
+                "ok": not below, "detail": "; ".join(below) or "all above"}
+        by = {r["views"]: r for r in rows}
+        if 5 in by and "delta_e2000_patches" in by[5]:
+            e = by[5]["delta_e2000_patches"]
+            out[f"{label}: mean CIEDE2000 per patch ≤ {PATCH_DELTA_E:g} with 5 views"] = {
+                "ok": bool(e <= PATCH_DELTA_E), "detail": f"{e:.2f}"}
         if all("retraced" in r for r in rows):
             gaps = [r["retraced"]["psnr"] - r["psnr"] for r in rows]
             out[f"{label}: calibrated within 1 dB of the exact operator traced with seed "
@@ -379,7 +409,7 @@ def main(argv=None) -> int:
         results[lab], images[lab] = res, imgs
 
     print_table(results, views)
-    targets = check_targets(results, views)
+    targets = check_targets(results, views, a.design)
     print()
     for name, t in targets.items():
         print(f"  [{'ok' if t['ok'] else 'MISSED'}] {name} ({t['detail']})")

@@ -20,7 +20,11 @@ is the system matrix measured with comb targets (:mod:`recon.calibration.footpri
 .. math:: g = A f, \qquad f \text{ on the target's texel grid } (H_t, W_t),
 
 with every pixel's own weights on the texels it sees: it needs no geometry or smear model, but
-its cube lives on the comb target's grid, not on the centre view's.
+its cube lives on the comb target's grid, not on the centre view's.  When the calibration's mask
+images were deconvolved for diffraction (``cal.psf`` is set), the shifted and smeared models
+blur their measurement with that PSF again (:class:`recon.operators.blur.BlurredOperator`):
+the lens blurs the coded, dispersed image, after the mask; the footprint model measured the
+blur with everything else.
 :func:`measurements` cuts the matching (K, Hv, Wm) stack out of a raw frame with the same boxes.
 """
 
@@ -84,10 +88,21 @@ def operator_from_calibration(cal: Calibration, view_ids=None, model: str = "aut
 
     Returns
     -------
-    recon.operators.SparseMatrixOperator, SmearedCassi or CalibratedCassi
+    recon.operators.SparseMatrixOperator, SmearedCassi, CalibratedCassi or BlurredOperator
         ``(L, H, W) -> (K, Hv, Wm)`` with ``(H, W, L) = cal.cube_shape``, or
-        ``(H, W) = cal.footprint_grid`` for the footprint model.
+        ``(H, W) = cal.footprint_grid`` for the footprint model; the shifted and smeared
+        models inside a :class:`~recon.operators.blur.BlurredOperator` when ``cal.psf`` is set.
     """
+    op = _unblurred(cal, view_ids, model, band_scale)
+    if cal.psf is None or resolve_model(cal, model) == "footprint":
+        return op
+    from recon.operators.blur import BlurredOperator
+
+    return BlurredOperator(op, cal.psf)
+
+
+def _unblurred(cal: Calibration, view_ids, model: str, band_scale):
+    """:func:`operator_from_calibration` without the sensor's PSF."""
     from recon.operators.calibrated import CalibratedCassi
     from recon.operators.smeared import SmearedCassi
     from recon.operators.sparse import SparseMatrixOperator

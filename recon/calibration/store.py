@@ -32,6 +32,13 @@ footprint_data     (nnz,) float32    the weights, >= 0
 footprint_gains    (L,) float64      radiometric gains of that model
 =================  ================  =========================================================
 
+and, optionally (the mask images were deconvolved for diffraction: the shifted and smeared
+models blur their measurement again, :class:`~recon.operators.blur.BlurredOperator`),
+
+===============  ==================  ===========================================================
+psf              (m, m) float32      the sensor's point-spread function, ``m`` odd, sum 1
+===============  ==================  ===========================================================
+
 and ``<name>.json`` holds ``design_hash``, ``cube_shape`` ([H, W, L], the API layout),
 ``view_ids``, ``captures`` (what it was made from) and ``created`` (UTC, ISO 8601).  Both files
 are written atomically (image first, then sidecar); loading validates every field and shape.
@@ -58,13 +65,13 @@ FORMAT = "kaleidospec-calibration"
 VERSION = 1
 #: Calibration code version (part of the cache key, :func:`calibration_path`): bump it when the
 #: capture renderer or the application's calibration steps (kaleidospec.calibrate) change.
-CODE_VERSION = 6
+CODE_VERSION = 7
 _CODE_VERSION: str | None = None
 ARRAY_FIELDS = ("view_boxes", "homographies", "mask_images", "offsets", "gains", "wavelengths")
 #: Arrays a calibration may hold (saved only when set).
 OPTIONAL_ARRAY_FIELDS = ("tap_start", "tap_weights", "view_masks", "smear_gains",
                          "footprint_grid", "footprint_indptr", "footprint_indices",
-                         "footprint_data", "footprint_gains")
+                         "footprint_data", "footprint_gains", "psf")
 _FOOTPRINT = ("footprint_grid", "footprint_indptr", "footprint_indices", "footprint_data")
 JSON_FIELDS = ("design_hash", "cube_shape", "view_ids", "captures", "created")
 _HASH_RE = re.compile(r"^[0-9A-Za-z_-]{1,128}$")
@@ -99,6 +106,7 @@ class Calibration:
     footprint_indices: np.ndarray | None = None
     footprint_data: np.ndarray | None = None
     footprint_gains: np.ndarray | None = None
+    psf: np.ndarray | None = None
 
     def __post_init__(self):
         self.view_ids = check_view_ids(self.view_ids)
@@ -131,6 +139,11 @@ class Calibration:
         self.captures = [str(c) for c in self.captures]
         self._check_smeared()
         self._check_footprint()
+        if self.psf is not None:
+            from recon.operators.blur import check_kernel
+
+            self.psf = check_kernel(self.psf)
+            self.psf /= self.psf.sum(dtype=np.float64)
         if not self.created:
             self.created = datetime.now(timezone.utc).isoformat(timespec="seconds")
 

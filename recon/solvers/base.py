@@ -241,6 +241,15 @@ def preconditioned_norm_sq(op: LinearOperator, phi_inv: np.ndarray, n_iter: int 
     return 1.02 * lam
 
 
+def row_norms_sq(op: LinearOperator) -> np.ndarray:
+    r"""The diagonal of :math:`HH^\top` that GAP's projection needs; an operator without
+    per-row norms (its rows share pixels, e.g. a blurred model) is an input error, not a crash."""
+    try:
+        return op.row_norms_sq()
+    except NotImplementedError as e:
+        raise InputError(f"gap-tv needs the operator's row norms: {e}") from None
+
+
 def safe_reciprocal(a: np.ndarray, dtype) -> np.ndarray:
     """``1/a`` where ``a > 0``, else 0 (rows of H that see nothing carry no information)."""
     a = np.asarray(a, dtype=np.float64)

@@ -29,7 +29,7 @@ from recon.errors import InputError
 from recon.operators.base import LinearOperator
 from recon.prox.tv import TVProx, tv_norm
 from recon.solvers.base import (IterationLoop, SolverResult, check_problem,
-                                preconditioned_norm_sq, safe_reciprocal)
+                                preconditioned_norm_sq, row_norms_sq, safe_reciprocal)
 
 __all__ = ["gap_tv"]
 
@@ -42,7 +42,7 @@ def projection_weights(op: LinearOperator, dtype,
     :math:`1/\lVert\Phi^{-1/2}H\rVert^2` otherwise (several views share scene voxels), unless
     given.  Rows of :math:`H` that are zero get weight 0.  Returns the weights and :math:`s`.
     """
-    phi_inv = safe_reciprocal(op.row_norms_sq(), dtype)
+    phi_inv = safe_reciprocal(row_norms_sq(op), dtype)
     if phi_inv.shape != op.oshape:
         raise InputError(f"row_norms_sq() shape {phi_inv.shape} != oshape {op.oshape}")
     if not np.any(phi_inv):

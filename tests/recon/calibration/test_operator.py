@@ -212,3 +212,43 @@ def test_footprint_model_is_its_matrix_rows_with_the_band_scale():
     np.testing.assert_allclose(op.forward(x).ravel(), want, rtol=1e-5, atol=1e-6)
     # The calibration's own weights are untouched by the scale.
     np.testing.assert_array_equal(fp.footprint_data, a.data)
+
+
+def test_a_calibrated_psf_blurs_the_shifted_and_smeared_models_not_the_footprint():
+    import dataclasses
+
+    import scipy.sparse as sp
+
+    from recon.calibration import airy_kernel
+    from recon.calibration.operator import operator_from_calibration
+    from recon.operators.blur import BlurredOperator, convolve_views
+
+    rng = np.random.default_rng(23)
+    k, n_bands, hv, wm = 2, 3, 12, 24
+    phi = np.array([[0.0, 2.2, 4.0]] * k)
+    pos = np.stack([phi - 0.6, phi + 0.6], axis=2).clip(0, 4.0)
+    cal = build_calibration(
+        view_ids=(0, 1), view_boxes=[(0, 30, hv, wm), (0, 0, hv, wm)],
+        box_homographies=np.stack([np.eye(3), np.array([[-1, 0, wm - 1.0], [0, 1, 0],
+                                                        [0, 0, 1]])]),
+        mask_images=rng.random((k, n_bands, hv, wm)), wavelengths=[450.0, 550.0, 650.0],
+        dispersion=phi, checker_dispersion=phi[:, 1], band_positions=pos, grid="centre")
+    hv_, wv = cal.view_shape
+    a = sp.random(k * hv * wm, n_bands * 5 * 8, density=0.05, random_state=rng, format="csr",
+                  dtype=np.float32)
+    cal = dataclasses.replace(cal, view_masks=rng.random((k, hv_, wv)),
+                              footprint_grid=np.array((5, 8)), footprint_indptr=a.indptr,
+                              footprint_indices=a.indices, footprint_data=a.data)
+    psf = airy_kernel(1.6)
+    blurred = dataclasses.replace(cal, psf=psf * 3.0)
+    np.testing.assert_allclose(blurred.psf.sum(), 1.0, rtol=1e-6)   # stored normalised
+    for model in ("shifted", "smeared"):
+        sharp = operator_from_calibration(cal, model=model)
+        op = operator_from_calibration(blurred, model=model)
+        assert isinstance(op, BlurredOperator) and not isinstance(sharp, BlurredOperator)
+        x = rng.random(op.ishape).astype(np.float32)
+        np.testing.assert_allclose(op.forward(x), convolve_views(sharp.forward(x), blurred.psf),
+                                   rtol=1e-5, atol=1e-6)
+        assert dot_test(op, rng) < 1e-6
+    assert not isinstance(operator_from_calibration(blurred, model="footprint"),
+                          BlurredOperator)

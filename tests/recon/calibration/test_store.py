@@ -303,3 +303,23 @@ def test_footprint_weights_must_be_non_negative_and_on_the_grid():
         dataclasses.replace(cal, footprint_indptr=ptr)
     with pytest.raises(InputError, match="needs the footprint"):
         dataclasses.replace(_cal(rng), footprint_gains=np.ones(4))
+
+
+def test_psf_saved_normalised_optional_and_validated(tmp_path):
+    import dataclasses
+
+    rng = np.random.default_rng(30)
+    cal = _cal(rng)
+    assert cal.psf is None
+    save_calibration(tmp_path / "plain.npz", cal)
+    assert load_calibration(tmp_path / "plain").psf is None
+    psf = rng.random((5, 5))
+    with_psf = dataclasses.replace(cal, psf=psf)
+    np.testing.assert_allclose(with_psf.psf, psf / psf.sum(), rtol=1e-6)
+    save_calibration(tmp_path / "psf.npz", with_psf)
+    back = load_calibration(tmp_path / "psf")
+    assert back.psf.dtype == np.float32
+    np.testing.assert_array_equal(back.psf, with_psf.psf)
+    for bad in (np.ones((4, 4)), -np.ones((3, 3)), np.ones(3)):
+        with pytest.raises(InputError):
+            dataclasses.replace(cal, psf=bad)
