@@ -195,6 +195,12 @@ def calibrate_from_captures(design, *, models=None, repeats: int = 4, progress: 
     extra = [name for name in STEPS if name in wanted]
     if captures is None:
         captures = render_captures(design, repeats=repeats, progress=progress)
+        if "footprint" not in extra:
+            # No capture is rendered after these (the comb captures would be): the captures'
+            # transport is not needed again in this process.
+            from kaleidospec.instrument import release_transports
+
+            release_transports("captures")
     caps = captures
     ids = tuple(sorted(design.views))
     wl = caps.wavelengths
@@ -210,7 +216,7 @@ def calibrate_from_captures(design, *, models=None, repeats: int = 4, progress: 
         radii = airy_radius_px(wl, design.imaging_f_number, design.sensor_pixel_um)
         # Below ~0.75 px the Airy core stays inside one pixel: deconvolution would only add noise.
         airy = radii if float(radii.max()) >= 0.75 else None
-        masks = mask_images(caps.white, boxes, airy_radius=airy)
+        masks = mask_images(caps.white, boxes, airy_radius=airy, progress=progress)
         # Chrome cells are not perfectly dark in a capture (stray light, the sensor's blur):
         # values near zero would give measurement pixels with a tiny row norm, which GAP-TV's
         # diag(HH^T)^-1 step amplifies without bound.  They are set to exactly zero.

@@ -253,8 +253,16 @@ def limit_threads(threads: int | None) -> None:
         dr.set_thread_count(int(threads))
 
 
-def release_transports() -> None:
-    """Drop the transports held in memory: each design point of a sweep has its own."""
+def release_transports(which: str | None = None) -> None:
+    """Drop the transports held in memory: each design point of a sweep has its own.
+
+    ``which`` (a key of :data:`sim.transport.SEEDS`) drops only that realisation's: the
+    captures' once a calibration has them (0.4 GB for the paper design)."""
     from sim import transport
 
-    transport._MEMO.clear()
+    if which is None:
+        transport._MEMO.clear()
+        return
+    seed = transport.SEEDS[which]
+    for key in [k for k, tr in transport._MEMO.items() if int(tr.maps.seed) == seed]:
+        del transport._MEMO[key]

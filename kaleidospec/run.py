@@ -159,7 +159,8 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
         try:
             for n in counts:
                 cube, info = reconstruct_views(frame, meta, cal, n, solver=solver, iters=iters,
-                                               tau=tau, truth=tg, design=design, model=model)
+                                               tau=tau, truth=tg, design=design, model=model,
+                                               progress=progress)
                 bar.update()
                 cubes[n] = cube
                 write_cube(tmp / f"cube_{n}views.exr", cube, wl)
@@ -170,7 +171,8 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
                         cube, info["truth_grid"], list(patches.values()), wl)
                 if oracle:
                     ocube, oinfo = reconstruct_oracle(frame, meta, design, n, solver=solver,
-                                                      iters=iters, tau=tau, truth=truth)
+                                                      iters=iters, tau=tau, truth=truth,
+                                                      progress=progress)
                     bar.update()
                     result["oracle"][str(n)] = evaluate.scores(oinfo, n)
         finally:

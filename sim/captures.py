@@ -233,12 +233,17 @@ def render_captures(design, *, repeats: int = 4, seed: int = 1000, progress: boo
         from tqdm import tqdm
 
         bar = tqdm(total=len(steps), desc="calibration captures", unit="capture", leave=False)
-    whites, lines = [], []
+    from sim import transport
+
+    # The band stacks are filled in place: a list of frames and its np.stack would hold both
+    # (1.9 GB more at the peak for the paper design's 26 whites and 26 lines).
+    whites = lines = None
     meta: dict = {"white": [], "line": []}
     out = {}
     try:
         for i, (name, l) in enumerate(steps):
             s = seed + 101 * i
+            known = set(transport._MEMO)
             if name == "white":
                 # A band-pass white (the band's whole interval, like a lab's filter of the band's
                 # width), not a line at the band centre: the mask image then carries the
@@ -248,12 +253,18 @@ def render_captures(design, *, repeats: int = 4, seed: int = 1000, progress: boo
                 band[:, :, l] = white_cube[:, :, l]
                 f, m = capture(design, band, wl, repeats=repeats, seed=s, target="white")
                 m["band_nm"] = float(wl[l])
-                whites.append(f), meta["white"].append(m)
+                if whites is None:
+                    whites = np.empty((wl.size,) + f.shape, np.float32)
+                whites[l] = f
+                meta["white"].append(m)
             elif name == "line":
                 f, m = capture(design, line_cube, wl, wavelength_nm=wl[l], repeats=repeats,
                                seed=s, target="line")
                 m["column"] = v // 2       # the line's place on the target (its datasheet)
-                lines.append(f), meta["line"].append(m)
+                if lines is None:
+                    lines = np.empty((wl.size,) + f.shape, np.float32)
+                lines[l] = f
+                meta["line"].append(m)
             elif name == "checker":
                 f, m = capture(design, checker_cube, wl, wavelength_nm=CHECKER_NM,
                                repeats=repeats, seed=s, target="checkerboard")
@@ -270,6 +281,13 @@ def render_captures(design, *, repeats: int = 4, seed: int = 1000, progress: boo
                 f, m = capture(design, cc_cube, wl, repeats=repeats, seed=s,
                                target="colorchecker")
                 out["colorchecker"], meta["colorchecker"] = f, m
+            del f
+            if name in ("line", "checker_white"):
+                # A monochromatic capture's transport (one wavelength, its throughput images
+                # computed) serves that capture only (the checkerboard's also its white's),
+                # and the memo would hold all 27 to the end of the process.
+                for key in set(transport._MEMO) - known:
+                    del transport._MEMO[key]
             if bar is not None:
                 bar.update(1)
     finally:
@@ -281,7 +299,7 @@ def render_captures(design, *, repeats: int = 4, seed: int = 1000, progress: boo
     radiance = np.stack([cc_cube[r0 + (r1 - r0) // 2, c0 + (c1 - c0) // 2]
                          for r0, c0, r1, c1 in b]).astype(np.float64)
     return Captures(design_hash=design.hash, wavelengths=wl.copy(),
-                    white=np.stack(whites), line=np.stack(lines), checker=out["checker"],
+                    white=whites, line=lines, checker=out["checker"],
                     checker_white=out["checker_white"], colorchecker=out["colorchecker"],
                     pattern_size=tuple(pattern), patch_radiance=radiance,
                     patch_boxes=boxes.astype(np.int64), meta=meta)

@@ -54,7 +54,7 @@ def line_centroids(line_captures, view_boxes, dark=None, half_width: int = 6) ->
     n_views, n_bands = views.shape[:2]
     out = np.empty((n_views, n_bands), dtype=np.float64)
     for k in range(n_views):
-        prof = views[k].sum(axis=1)                          # (L, w)
+        prof = views[k].sum(axis=1, dtype=np.float64)        # (L, w)
         prof = prof - np.median(prof, axis=1, keepdims=True)
         w = prof.shape[1]
         x = np.arange(w, dtype=np.float64)

@@ -134,10 +134,13 @@ def _unblurred(cal: Calibration, view_ids, model: str, band_scale):
         return SmearedCassi(cal.view_masks[idx], cal.tap_start[idx],
                             cal.tap_weights[idx] * scale[None, :, None], warps=warps,
                             cube_shape=(n_bands, h, w), width=cal.mask_images.shape[3])
-    masks = cal.mask_images[idx]
-    if band_scale is not None:
-        masks = masks * scale.astype(np.float32)[None, :, None, None]
-    return CalibratedCassi(masks, cal.offsets[idx], warps=warps, cube_shape=(n_bands, h, w))
+    # The scale goes into the operator's interpolation weights: a scaled copy of the used
+    # views' mask images would be (K, L, Hv, Wm) float32 more (0.3 GB for 5 paper views).
+    # Indexing with a contiguous run of views is a slice, not a copy.
+    masks = (cal.mask_images[idx[0]:idx[-1] + 1] if idx == list(range(idx[0], idx[-1] + 1))
+             else cal.mask_images[idx])
+    return CalibratedCassi(masks, cal.offsets[idx], warps=warps, cube_shape=(n_bands, h, w),
+                           band_scale=None if band_scale is None else scale)
 
 
 def check_design(cal: Calibration, metadata: dict | None, what: str = "raw frame") -> None:

@@ -14,12 +14,22 @@ offset :math:`\varphi_{k,l}` on the sensor crop (linear interpolation for sub-pi
 Unlike :class:`~recon.operators.cassi.CassiOperator`, the offsets here are *absolute* column
 positions on the crop of width :math:`W_m` the mask images were cut to, not normalised: each
 band must land inside it.
+
+A per-band scale :math:`s_l` (``band_scale``, e.g. the inverse radiometric gains) multiplies
+:math:`C_{k,l}`; it is folded into the interpolation weights, so the mask images are never
+copied to apply it.
+
+In float32 with Numba, every view runs in the fused kernels of :mod:`recon.kernels.calibrated`
+(warp, mask image and shift of all bands in one pass per row; the adjoint as a gather along
+the rows of :math:`W_k^\top`); the NumPy code here is their tested reference and the path for
+float64.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from recon import kernels
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
 from recon.operators.dispersion import as_offsets, shift_row_norms, split, work_dtype
@@ -43,15 +53,20 @@ class CalibratedCassi(LinearOperator):
     cube_shape : (L, H, W), optional
         Band-major scene shape; defaults to the input shape of the first warp that has one,
         else :math:`(L, H_v, W_m - \lceil\max\varphi\rceil)`.
+    band_scale : (L,) array_like, optional
+        :math:`s_l`, multiplies band ``l`` of the model (default 1): the operator is that of
+        the mask images :math:`s_l C_{k,l}`, without a scaled copy of them.
 
     Attributes
     ----------
     mask_images : (K, L, Hv, Wm) float32
+        :math:`C_{k,l}` as given (not scaled; a float32 C-contiguous input is kept, not copied).
+    band_scale : (L,) float64
     offsets : (K, L) float64
     n_views, n_bands : int
     """
 
-    def __init__(self, mask_images, offsets, warps=None, cube_shape=None):
+    def __init__(self, mask_images, offsets, warps=None, cube_shape=None, band_scale=None):
         c = np.asarray(mask_images)
         if c.ndim == 3:
             c = c[None]
@@ -88,14 +103,27 @@ class CalibratedCassi(LinearOperator):
                     raise InputError(f"view {i} band {l}: offset {table[i, l]:g} + view width {wv}"
                                      f" does not fit in the mask image width {wm}")
         self.n_views, self.n_bands = k, n_bands
+        scale = np.ones(n_bands) if band_scale is None else np.asarray(band_scale, np.float64)
+        if scale.shape != (n_bands,) or not np.all(np.isfinite(scale)):
+            raise InputError(f"band_scale must be {n_bands} finite numbers, got shape "
+                             f"{scale.shape}")
+        self.band_scale = scale
+        # The two taps of every view and band, the scale folded in: (1-t) s and t s.
+        t = np.array([[p[1] for p in row] for row in self._parts])
+        self._taps = ((1.0 - t) * scale, t * scale)
         self._cmasks = InPrecision(self.mask_images)
+        self._kernel_views = None
         self._row_norms = None
         super().__init__(cs, (k, hv, wm))
 
+    # -- operator --------------------------------------------------------------------------
     def _forward(self, x):
         dt = work_dtype(x)
         x = x.astype(dt, copy=False)
+        if kernels.usable(x):
+            return self._forward_kernel(np.ascontiguousarray(x))
         cm = self._cmasks(dt)
+        w0, w1 = self._taps
         out = np.zeros(self.oshape, dtype=dt)
         for k, warp in enumerate(self.warps):
             xv = warp.apply(x)
@@ -105,21 +133,25 @@ class CalibratedCassi(LinearOperator):
                 c = cm[k, l]
                 d0 = out[k, :, a:a + wv]
                 np.multiply(xv[l], c[:, a:a + wv], out=buf)
+                if w0[k, l] != 1.0:
+                    buf *= w0[k, l]
+                np.add(d0, buf, out=d0)
                 if t == 0.0:
-                    np.add(d0, buf, out=d0)
                     continue
                 d1 = out[k, :, a + 1:a + 1 + wv]
-                buf *= 1.0 - t
-                np.add(d0, buf, out=d0)
                 np.multiply(xv[l], c[:, a + 1:a + 1 + wv], out=buf)
-                buf *= t
+                buf *= w1[k, l]
                 np.add(d1, buf, out=d1)
         return out
 
     def _adjoint(self, y):
         dt = work_dtype(y)
         y = y.astype(dt, copy=False)
+        if kernels.usable(y):
+            out = np.empty(self.ishape, dtype=dt)
+            return self._adjoint_kernel(np.ascontiguousarray(y), None, 1.0, out)
         cm = self._cmasks(dt)
+        w0, w1 = self._taps
         out = np.zeros(self.ishape, dtype=dt)
         for k, warp in enumerate(self.warps):
             wv = warp.out_shape[1]
@@ -130,10 +162,11 @@ class CalibratedCassi(LinearOperator):
                 c = cm[k, l]
                 z = tmp[l]
                 np.multiply(y[k, :, a:a + wv], c[:, a:a + wv], out=z)
+                if w0[k, l] != 1.0:
+                    z *= w0[k, l]
                 if t != 0.0:
-                    z *= 1.0 - t
                     np.multiply(y[k, :, a + 1:a + 1 + wv], c[:, a + 1:a + 1 + wv], out=buf)
-                    buf *= t
+                    buf *= w1[k, l]
                     z += buf
             if acc is not None:
                 acc += tmp
@@ -141,8 +174,91 @@ class CalibratedCassi(LinearOperator):
                 out += warp.apply_adjoint(tmp)
         return out
 
+    def adjoint_add(self, y, base, scale=1.0, out=None):
+        r""":math:`b + s H^\top y` with the adjoint added as it is computed (float32 kernels;
+        see :meth:`LinearOperator.adjoint_add <recon.operators.base.LinearOperator.adjoint_add>`).
+        """
+        base = np.asarray(base)
+        dt = base.dtype
+        if not (kernels.usable(base) and base.shape == self.ishape
+                and base.flags.c_contiguous
+                and (out is None or (out.dtype == dt and out.flags.c_contiguous
+                                     and out.shape == self.ishape))):
+            return super().adjoint_add(y, base, scale, out)
+        y = np.asarray(y)
+        if y.shape != self.oshape:
+            raise ValueError(f"{type(self).__name__}: input shape {y.shape} != {self.oshape}")
+        target = out
+        # Views after the first add to the output, so the output cannot be the base then.
+        if out is None or (self.n_views > 1 and np.may_share_memory(out, base)):
+            target = np.empty(self.ishape, dtype=dt)
+        self._adjoint_kernel(np.ascontiguousarray(y, dtype=dt), base, scale, target)
+        if out is not None and target is not out:
+            np.copyto(out, target)
+            return out
+        return target
+
+    def _kernel_arrays(self):
+        """Per view the arrays of :mod:`recon.kernels.calibrated` (float32; made once):
+        ``(ident, W, W^T, a, c0, c1, sub)`` with ``W``, ``W^T`` as CSR triples
+        ``(indptr, indices, data)`` (``None`` for an identity warp)."""
+        if self._kernel_views is None:
+            from recon.operators.warp import Identity
+
+            w0, w1 = self._taps
+            views = []
+            for k, warp in enumerate(self.warps):
+                ident = isinstance(warp, Identity)
+                fwd = adj = None
+                if not ident:
+                    fwd, adj = (_csr32(m) for m in warp.sparse_pair())
+                a = np.array([p[0] for p in self._parts[k]], dtype=np.int64)
+                views.append((ident, fwd, adj, a, w0[k].astype(np.float32),
+                              w1[k].astype(np.float32), np.asarray(w1[k] != 0.0)))
+            self._kernel_views = views
+        return self._kernel_views
+
+    def _forward_kernel(self, x):
+        from recon.kernels import calibrated as kcal
+
+        out = np.empty(self.oshape, dtype=np.float32)
+        xf = x.reshape(self.n_bands, -1)
+        cm = self.mask_images
+        with kernels.threads():
+            for k, (ident, fwd, _, a, c0, c1, sub) in enumerate(self._kernel_arrays()):
+                ip, ix, dv = fwd if fwd is not None else _NO_CSR
+                kcal.forward_view(xf, cm[k], a, c0, c1, sub, ident, ip, ix, dv,
+                                  self.warps[k].out_shape[1], out[k])
+        return out
+
+    def _adjoint_kernel(self, y, base, scale, out):
+        r"""``out`` :math:`= H^\top y` (``base`` None) or :math:`b + s H^\top y`; ``out`` may be
+        ``base`` only for one view."""
+        from recon.kernels import calibrated as kcal
+
+        dt = np.float32
+        cm = self.mask_images
+        views = self._kernel_arrays()
+        b = out if base is None else np.ascontiguousarray(base, dtype=dt)
+        s = dt(scale)
+        z = None
+        with kernels.threads():
+            for k, (ident, _, adj, a, c0, c1, sub) in enumerate(views):
+                first, last = k == 0, k == len(views) - 1
+                # How this view's part combines with the output (recon.kernels.calibrated).
+                mode = (0 if first else 1) if base is None or not last else (3 if first else 2)
+                if ident:
+                    kcal.shift_adjoint(y[k], cm[k], a, c0, c1, sub, mode, b, s, out)
+                    continue
+                # Views may differ in width (each homography has its own view shape).
+                if z is None or z.shape[1:] != self.warps[k].out_shape:
+                    z = np.empty((self.n_bands,) + self.warps[k].out_shape, dtype=dt)
+                kcal.shift_adjoint(y[k], cm[k], a, c0, c1, sub, 0, z, s, z)
+                kcal.warp_adjoint(z.reshape(self.n_bands, -1), *adj, mode, b, s, out)
+        return out
+
     def row_norms_sq(self) -> np.ndarray:
-        r"""Diagonal of :math:`HH^\top`: :math:`\sum_l C_{k,l}^2 \|(S_{k,l}W_k)_i\|^2`."""
+        r"""Diagonal of :math:`HH^\top`: :math:`\sum_l s_l^2 C_{k,l}^2 \|(S_{k,l}W_k)_i\|^2`."""
         if self._row_norms is None:
             out = np.zeros(self.oshape, dtype=np.float64)
             q = np.empty(self.oshape[1:], dtype=np.float64)
@@ -151,10 +267,25 @@ class CalibratedCassi(LinearOperator):
                 for l, (a, t) in enumerate(self._parts[k]):
                     q.fill(0.0)
                     shift_row_norms(n, c, a, t, q)
-                    out[k] += self.mask_images[k, l].astype(np.float64) ** 2 * q
+                    out[k] += (self.band_scale[l] * self.mask_images[k, l].astype(np.float64)
+                               ) ** 2 * q
             self._row_norms = out
         return self._row_norms.copy()
 
     def __repr__(self):
         return (f"<CalibratedCassi {self.n_views} view(s), {self.n_bands} bands: "
                 f"{self.ishape} -> {self.oshape}>")
+
+
+#: Placeholder CSR arrays for identity views (the kernel does not read them).
+_NO_CSR = (np.zeros(1, np.int32), np.zeros(1, np.int32), np.zeros(1, np.float32))
+
+
+def _csr32(m):
+    """``(indptr, indices, data)`` of a CSR matrix as int32, int32, float32 (no copy when they
+    already are): one compiled signature of the kernels for every warp."""
+    if m.nnz >= 2 ** 31:
+        raise InputError(f"a warp with {m.nnz} entries is too large for the kernels")
+    return (np.ascontiguousarray(m.indptr, dtype=np.int32),
+            np.ascontiguousarray(m.indices, dtype=np.int32),
+            np.ascontiguousarray(m.data, dtype=np.float32))

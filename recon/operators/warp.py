@@ -84,6 +84,12 @@ class Warp:
         return sp.csr_matrix((np.ones(rows.size), (rows, cols)),
                              shape=(int(np.prod(self.out_shape)), h * w))
 
+    def sparse_pair(self) -> tuple[sp.csr_matrix, sp.csr_matrix]:
+        r""":math:`W` and :math:`W^\top` as float32 CSR matrices, the same weights in both (the
+        fused kernels gather along the rows of each, :mod:`recon.kernels.calibrated`)."""
+        m = self.matrix().astype(np.float32).tocsr()
+        return m, m.T.tocsr()
+
     def norm_parts(self) -> tuple[np.ndarray, np.ndarray | None]:
         r"""Row statistics of the matrix used for closed-form row norms.
 
@@ -227,6 +233,9 @@ class HomographyWarp(Warp):
 
     def matrix(self):
         return self._m.astype(np.float64)
+
+    def sparse_pair(self):
+        return self._m, self._mt
 
     def norm_parts(self):
         if self._n_c is None:

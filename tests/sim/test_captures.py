@@ -84,7 +84,10 @@ def test_repeats_average_the_noise():
 
 
 def test_render_captures_is_complete_and_tagged():
+    from sim import transport
+
     d = get_design("small", OVR)
+    before = set(transport._MEMO)
     caps = render_captures(d, repeats=1)
     L = d.n_bands
     hs, ws = d.sensor_height_px, d.sensor_width_px
@@ -101,3 +104,11 @@ def test_render_captures_is_complete_and_tagged():
     assert np.all(caps.white.max(axis=(1, 2)) > 0.5 * d.max_dn)
     assert caps.patch_radiance.shape == (24, L) and np.all(caps.patch_radiance > 0)
     assert len(caps.names()) == 2 * L + 3
+    # The monochromatic captures' transports are dropped once used: only band-pass ones
+    # (every band's interval) stay in memory; so are the captures' on request.
+    from kaleidospec.instrument import release_transports
+
+    kept = [transport._MEMO[k] for k in set(transport._MEMO) - before]
+    assert kept and all(tr.intervals.shape[0] == L for tr in kept)
+    release_transports("captures")
+    assert all(tr.maps.seed != transport.SEEDS["captures"] for tr in transport._MEMO.values())

@@ -149,3 +149,20 @@ def test_view_masks_recovered_jointly_from_smeared_whites():
         view_masks(caps, boxes, start, weights, wm)          # kernels do not fit
     with pytest.raises(InputError):
         view_masks(caps, boxes, start[:, :2], weights, wv)
+
+
+def test_view_stack_is_float32_and_the_deconvolution_shows_progress(capsys):
+    # float32 crops (a float64 stack of five paper views is 0.9 GB); the deconvolution's bar
+    # counts the crops on stderr and changes nothing.
+    from recon.calibration.mask import view_stack
+
+    rng = np.random.default_rng(3)
+    c = _truth(rng)
+    caps, boxes = _captures(c, rng, noise=0.002, blur=1.2)
+    assert view_stack(caps, boxes).dtype == np.float32
+    radii = np.full(len(OFFS), 1.2)
+    quiet = mask_images(caps, boxes, airy_radius=radii, rl_iterations=3)
+    capsys.readouterr()
+    shown = mask_images(caps, boxes, airy_radius=radii, rl_iterations=3, progress=True)
+    assert "deconvolution" in capsys.readouterr().err
+    np.testing.assert_array_equal(shown, quiet)

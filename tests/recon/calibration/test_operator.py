@@ -175,6 +175,13 @@ def test_model_selection_smeared_and_shifted():
         b = operator_from_calibration(full, model=model, band_scale=scale)
         np.testing.assert_allclose(b.forward(x), a.forward(x * scale[:, None, None]),
                                    rtol=1e-5, atol=1e-6)
+    # The shifted model scales its weights, not a copy of the mask images (a run of
+    # consecutive views is a slice of the calibration's; other orders are gathered).
+    b = operator_from_calibration(full, model="shifted", band_scale=scale)
+    assert np.shares_memory(b.mask_images, full.mask_images)
+    assert np.array_equal(b.band_scale, scale)
+    swapped = operator_from_calibration(full, (1, 0), model="shifted", band_scale=scale)
+    assert np.array_equal(swapped.mask_images, full.mask_images[::-1])
 
 
 def test_footprint_model_is_its_matrix_rows_with_the_band_scale():

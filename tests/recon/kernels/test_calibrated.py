@@ -1,0 +1,145 @@
+"""The calibrated-CASSI kernels (:mod:`recon.kernels.calibrated`) against the NumPy path of
+:class:`~recon.operators.CalibratedCassi` (float32, as in ``test_kernels.py``).
+
+Operators mix identity, flipped and homography views (a homography whose view shape differs
+from the cube's), integer and sub-pixel offsets, per-view offsets and band scales, single
+bands, rows and columns, so that every branch of the kernels runs.
+"""
+
+import numpy as np
+import pytest
+
+from recon import kernels
+from recon.operators import CalibratedCassi, Flip, HomographyWarp, Translate, dot_test
+
+pytestmark = pytest.mark.skipif(not kernels.enabled(), reason="Numba kernels switched off")
+
+RTOL32 = 1e-6
+
+
+def _rel(a, b):
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    return float(np.abs(a - b).max() / max(np.abs(b).max(), 1e-30))
+
+
+def _homography(rng, shape, out_shape):
+    """A mild projective map (rotation, scale, shear, perspective) of the cube onto a view."""
+    a = 0.05 * rng.standard_normal()
+    m = np.array([[np.cos(a) * 1.02, -np.sin(a), rng.uniform(-1, 1)],
+                  [np.sin(a), np.cos(a) * 0.98, rng.uniform(-1, 1)],
+                  [1e-3 * rng.standard_normal(), 1e-3 * rng.standard_normal(), 1.0]])
+    return HomographyWarp(m, shape, out_shape)
+
+
+def _operators():
+    rng = np.random.default_rng(21)
+    cm = lambda k, l, h, w: rng.random((k, l, h, w)).astype(np.float32)  # noqa: E731
+    return {
+        "identity-int": CalibratedCassi(cm(1, 3, 7, 12), [0, 2, 4], cube_shape=(3, 7, 8)),
+        "identity-sub": CalibratedCassi(cm(1, 4, 5, 11), [0.3, 1.0, 2.5, 3.75],
+                                        cube_shape=(4, 5, 7)),
+        "one-band-one-column": CalibratedCassi(cm(1, 1, 6, 3), [1.5], cube_shape=(1, 6, 1)),
+        "one-row": CalibratedCassi(cm(2, 3, 1, 9), [[0, 0.5, 1.25], [2, 1, 0.0]],
+                                   [None, Flip(1)], (3, 1, 6)),
+        "flips": CalibratedCassi(cm(4, 3, 6, 10), [[0, 1.5, 2.25], [3, 2, 0.5], [0, 0, 0],
+                                                   [1.1, 2.2, 3.3]],
+                                 [None, Flip(0), Flip(1), Flip((0, 1))], (3, 6, 6)),
+        "translate": CalibratedCassi(cm(2, 3, 4, 9), [[0, 1.5, 2.25], [3, 2, 0.5]],
+                                     [Translate(0.4, -0.7), None], (3, 4, 5)),
+        # Five views as at paper size: the centre, then homographies onto smaller views.
+        "homographies-5": CalibratedCassi(
+            cm(5, 4, 9, 15), rng.uniform(0, 3, (5, 4)),
+            [None] + [_homography(rng, (9, 11), (9, 11)) for _ in range(4)], (4, 9, 11)),
+        "homography-other-shape": CalibratedCassi(
+            cm(2, 3, 8, 14), [[0.2, 1.4, 2.6], [0, 1, 2]],
+            [_homography(rng, (10, 12), (8, 11)), _homography(rng, (10, 12), (8, 10))],
+            (3, 10, 12)),
+        "band-scale": CalibratedCassi(cm(3, 4, 6, 12), rng.uniform(0, 3, (3, 4)),
+                                      [None, Flip(1), _homography(rng, (6, 8), (6, 8))],
+                                      (4, 6, 8), band_scale=[0.5, 2.0, 1.0, 3.25]),
+        "band-scale-zero": CalibratedCassi(cm(1, 3, 5, 9), [0.5, 1.5, 2.0],
+                                           cube_shape=(3, 5, 6), band_scale=[1.0, 0.0, -2.0]),
+    }
+
+
+OPS = _operators()
+
+
+@pytest.mark.parametrize("name", sorted(OPS))
+def test_forward_and_adjoint_match_numpy(name):
+    op = OPS[name]
+    rng = np.random.default_rng(22)
+    x = rng.standard_normal(op.ishape).astype(np.float32)
+    y = rng.standard_normal(op.oshape).astype(np.float32)
+    fwd, adj = op.forward(x), op.adjoint(y)
+    with kernels.numpy_only():
+        fwd_ref, adj_ref = op.forward(x), op.adjoint(y)
+    assert fwd.dtype == adj.dtype == np.float32
+    assert fwd.shape == op.oshape and adj.shape == op.ishape
+    assert _rel(fwd, fwd_ref) < RTOL32
+    assert _rel(adj, adj_ref) < RTOL32
+
+
+@pytest.mark.parametrize("name", sorted(OPS))
+def test_kernels_have_exact_adjoints(name):
+    assert dot_test(OPS[name], np.random.default_rng(23), dtype=np.float32) < 1e-6
+
+
+@pytest.mark.parametrize("name", sorted(OPS))
+@pytest.mark.parametrize("where", ["new", "base", "other"])
+def test_adjoint_add_is_base_plus_scaled_adjoint(name, where):
+    op = OPS[name]
+    rng = np.random.default_rng(24)
+    base = rng.standard_normal(op.ishape).astype(np.float32)
+    y = rng.standard_normal(op.oshape).astype(np.float32)
+    with kernels.numpy_only():
+        want = base + np.float32(0.37) * op.adjoint(y)
+    b = base.copy()
+    out = {"new": None, "base": b, "other": np.empty_like(b)}[where]
+    got = op.adjoint_add(y, b, 0.37, out=out)
+    assert got.dtype == np.float32
+    assert got is out if out is not None else got is not b
+    assert _rel(got, want) < RTOL32
+    if where != "base":
+        assert np.array_equal(b, base)          # the base is only read
+
+
+def test_band_scale_is_the_scaled_mask_images():
+    rng = np.random.default_rng(25)
+    cm = rng.random((2, 3, 6, 12)).astype(np.float32)
+    s = np.array([0.25, 4.0, 1.5])
+    args = ([[0.5, 1.0, 2.5], [0, 3.5, 1.25]], [None, Translate(0.3, 0.6)], (3, 6, 8))
+    scaled = CalibratedCassi(cm, *args, band_scale=s)
+    copied = CalibratedCassi(cm * s.astype(np.float32)[None, :, None, None], *args)
+    assert scaled.mask_images is cm                 # no scaled copy is made
+    x = rng.standard_normal(scaled.ishape).astype(np.float32)
+    y = rng.standard_normal(scaled.oshape).astype(np.float32)
+    for ctx in (kernels.threads, kernels.numpy_only):
+        with ctx():
+            assert _rel(scaled.forward(x), copied.forward(x)) < RTOL32
+            assert _rel(scaled.adjoint(y), copied.adjoint(y)) < RTOL32
+    np.testing.assert_allclose(scaled.row_norms_sq(), copied.row_norms_sq(), rtol=1e-6)
+
+
+def test_float64_takes_the_numpy_path():
+    op = OPS["homographies-5"]
+    rng = np.random.default_rng(26)
+    x = rng.standard_normal(op.ishape)
+    assert op.forward(x).dtype == np.float64
+    with kernels.numpy_only():
+        ref = op.forward(x)
+    assert np.array_equal(op.forward(x), ref)
+
+
+def test_kernels_do_not_depend_on_threads():
+    op = OPS["homographies-5"]
+    rng = np.random.default_rng(27)
+    x = rng.standard_normal(op.ishape).astype(np.float32)
+    y = rng.standard_normal(op.oshape).astype(np.float32)
+    outs = []
+    for n in (1, 2, 3):
+        with kernels.threads(n):
+            outs.append((op.forward(x), op.adjoint(y), op.adjoint_add(y, x, 0.5)))
+    for other in outs[1:]:
+        for a, b in zip(outs[0], other):
+            assert np.array_equal(a, b)
