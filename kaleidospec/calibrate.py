@@ -194,10 +194,12 @@ def calibrate_from_captures(design, *, models=None, repeats: int = 4, progress: 
         raise InputError(f"unknown calibrated model(s) {unknown}; known: {', '.join(MODELS)}")
     extra = [name for name in STEPS if name in wanted]
     if captures is None:
-        captures = render_captures(design, repeats=repeats, progress=progress)
-        if "footprint" not in extra:
-            # No capture is rendered after these (the comb captures would be): the captures'
-            # transport is not needed again in this process.
+        # No capture is rendered after these but the comb captures: without them the
+        # captures' transport is not needed again in this process.
+        keep = "footprint" in extra
+        captures = render_captures(design, repeats=repeats, progress=progress,
+                                   keep_transport=keep)
+        if not keep:
             from kaleidospec.instrument import release_transports
 
             release_transports("captures")

@@ -112,3 +112,19 @@ def test_render_captures_is_complete_and_tagged():
     assert kept and all(tr.intervals.shape[0] == L for tr in kept)
     release_transports("captures")
     assert all(tr.maps.seed != transport.SEEDS["captures"] for tr in transport._MEMO.values())
+
+
+def test_captures_without_keeping_the_transport_are_the_same_captures():
+    """``keep_transport=False`` drops the band-pass transport before the monochromatic
+    captures (memory) and changes no capture: each keeps its own noise seed."""
+    from kaleidospec.instrument import release_transports
+    from sim import transport
+
+    d = get_design("small", OVR)
+    kept = render_captures(d, repeats=1)
+    release_transports("captures")
+    before = set(transport._MEMO)
+    lean = render_captures(d, repeats=1, keep_transport=False)
+    assert set(transport._MEMO) - before == set()
+    for name in ("white", "line", "checker", "checker_white", "colorchecker"):
+        np.testing.assert_array_equal(getattr(lean, name), getattr(kept, name), err_msg=name)
