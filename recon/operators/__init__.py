@@ -5,6 +5,7 @@ Working layout is band-major: cubes are (L, H, W), measurements (K, Hv, Wm), flo
 
 from recon.operators.bandwarp import BandWarpCassi
 from recon.operators.base import LinearOperator, MatrixOperator, ScaledOperator, dot_test
+from recon.operators.blur import BlurredOperator
 from recon.operators.calibrated import CalibratedCassi
 from recon.operators.cassi import CassiOperator, View, kaleidoscope_cassi, standard_cassi
 from recon.operators.dispersion import Dispersion
@@ -17,7 +18,7 @@ __all__ = [
     "LinearOperator", "MatrixOperator", "ScaledOperator", "dot_test",
     "View", "CassiOperator", "standard_cassi", "kaleidoscope_cassi", "CalibratedCassi",
     "BandWarpCassi",
-    "SmearedCassi", "taps_from_positions", "SparseMatrixOperator",
+    "SmearedCassi", "taps_from_positions", "SparseMatrixOperator", "BlurredOperator",
     "Dispersion", "MaskModulation",
     "Warp", "Identity", "Flip", "Translate", "HomographyWarp", "WarpOperator",
 ]
