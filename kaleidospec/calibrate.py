@@ -37,14 +37,18 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["MASK_FLOOR", "BOX_MARGIN_X", "RADIOMETRY", "RADIOMETRY_VIEWS", "STEPS", "Measured",
-           "calibrate", "calibrate_from_captures", "calibration_file", "is_cached"]
+__all__ = ["MASK_FLOOR", "BOX_MARGIN_X", "DECONVOLVE_MIN_PX", "RADIOMETRY", "RADIOMETRY_VIEWS",
+           "STEPS", "Measured", "calibrate", "calibrate_from_captures", "calibration_file",
+           "deconvolution_radii", "is_cached"]
 
 #: Calibrated mask values below this (fraction of the white level) are taken as chrome (0).
 MASK_FLOOR = 0.05
 #: Columns added (at most: never so many that boxes overlap) on each side of a view's lit extent:
 #: a view's outermost columns are lit by one band only and fall under the box threshold.
 BOX_MARGIN_X = 2
+#: The mask images are deconvolved (and the shifted and smeared models blurred by the PSF) when
+#: the largest Airy radius reaches this many pixels (``small``: 0.39 px, ``paper``: 2.11 px).
+DECONVOLVE_MIN_PX = 0.75
 #: Where the radiometric gains come from: "flat" (the flat field's known radiance) or
 #: "colorchecker" (refitted on the reconstructed chart; module notes).
 RADIOMETRY = "flat"
@@ -122,6 +126,17 @@ STEPS: dict[str, tuple[str, Callable[..., dict]]] = {
     "smeared": ("view masks", _smeared),
     "footprint": ("footprints", _footprints),
 }
+
+
+def deconvolution_radii(design, wavelengths=None) -> np.ndarray | None:
+    """(L,) the Airy radii (px) the mask images are deconvolved with, or None where the lens's
+    diffraction stays inside a pixel (then the calibrated models carry no PSF either)."""
+    from recon.calibration import airy_radius_px
+
+    wl = design.wavelengths if wavelengths is None else np.asarray(wavelengths, np.float64)
+    radii = airy_radius_px(wl, design.imaging_f_number, design.sensor_pixel_um)
+    # Below ~0.75 px the Airy core stays inside one pixel: deconvolution would only add noise.
+    return radii if float(radii.max()) >= DECONVOLVE_MIN_PX else None
 
 
 def calibrate(design, *, model: str | None = None, cache_dir=None, progress: bool = True,
@@ -216,8 +231,7 @@ def calibrate_from_captures(design, *, models=None, repeats: int = 4, progress: 
         fit = fit_dispersion(wl, cen, ref_nm=CHECKER_NM, degree=min(3, wl.size - 1))
         bar.update()
         radii = airy_radius_px(wl, design.imaging_f_number, design.sensor_pixel_um)
-        # Below ~0.75 px the Airy core stays inside one pixel: deconvolution would only add noise.
-        airy = radii if float(radii.max()) >= 0.75 else None
+        airy = deconvolution_radii(design, wl)
         masks = mask_images(caps.white, boxes, airy_radius=airy, progress=progress)
         # Chrome cells are not perfectly dark in a capture (stray light, the sensor's blur):
         # values near zero would give measurement pixels with a tiny row norm, which GAP-TV's

@@ -476,11 +476,13 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
         Views used for reconstruction (1, 2, 3, 5, …; the first of centre, left, right, top,
         bottom).
     solver, iters, cold_iters, tau
-        Solver (default GAP-TV with the calibration, FISTA-TV with the exact operator: GAP-TV
-        projects onto each measurement row with :math:`\mathrm{diag}(HH^\top)^{-1}`, exact
-        only when rows share no voxel, as in the shifted model; the exact operator's pixels
-        share texels through their footprints, the smear and the blur, and GAP-TV diverges
-        on it), iterations of warm-started and of cold-started frames, TV weight.
+        Solver (default GAP-TV with the calibration, FISTA-TV with the exact operator or with
+        a calibration that carries the lens's PSF,
+        :func:`kaleidospec.calibrate.deconvolution_radii`: GAP-TV projects onto each
+        measurement row with :math:`\mathrm{diag}(HH^\top)^{-1}`, exact only when rows share
+        no voxel, as in the shifted model; the exact operator's pixels share texels through
+        their footprints, the smear and the blur, and GAP-TV diverges on it), iterations of
+        warm-started and of cold-started frames, TV weight.
     temporal : float
         Weight μ of the temporal term (0: off).
     seed, noise : sensor noise.
@@ -507,14 +509,18 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
         Render and reconstruction statistics and the metrics summary.
     """
     from kaleidospec import instrument
-    from kaleidospec.calibrate import calibrate, calibration_file
+    from kaleidospec.calibrate import calibrate, calibration_file, deconvolution_radii
     from kaleidospec.report import write_json
     from recon.app import solver_names
 
     if operator not in ("calibrated", "oracle"):
         raise InputError(f"--operator must be calibrated or oracle, got {operator!r}")
+    d = instrument.get_design(design, overrides)
     if solver is None:
-        solver = "fista-tv" if operator == "oracle" else "gap-tv"
+        # A calibration that carries the lens's PSF blurs its rows together, like the exact
+        # operator: GAP-TV's diagonal projection does not hold for either.
+        solver = "fista-tv" if operator == "oracle" or deconvolution_radii(d) is not None \
+            else "gap-tv"
     if solver not in solver_names():
         raise InputError(f"--solver must be one of {', '.join(solver_names())}, got {solver!r}")
     if operator == "oracle":
@@ -533,7 +539,6 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
     if scheduler is not None and not str(scheduler).startswith(("tcp://", "tls://", "inproc://",
                                                                 "ucx://")):
         raise InputError(f"--scheduler must be an address like tcp://host:8786, got {scheduler!r}")
-    d = instrument.get_design(design, overrides)
     if not 1 <= int(views) <= len(d.views):
         raise InputError(f"--views must be 1..{len(d.views)} for this design, got {views}")
     anim = instrument.animation(scene, d, n_frames=frames, fps=fps, subframes=subframes,

@@ -49,7 +49,8 @@ def video(
     cold_iters: int = typer.Option(50, "--cold-iters", help="Iterations of a segment's first "
                                    "(cold-started) frame."),
     solver: Optional[str] = typer.Option(None, "--solver", help="gap-tv (default), twist or "
-                                         "fista-tv (the default with --operator oracle)."),
+                                         "fista-tv (the default with --operator oracle, or "
+                                         "where the lens blurs over a pixel, e.g. paper)."),
     tau: Optional[float] = typer.Option(None, "--tau", help="TV weight (solver default)."),
     temporal: float = typer.Option(0.0, "--temporal", help="Weight of the temporal TV term "
                                    "|f_t - f_(t-1)|_1 (0: off; gap-tv only)."),

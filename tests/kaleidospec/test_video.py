@@ -327,3 +327,19 @@ def test_other_settings_in_the_same_folder_are_refused(tmp_path):
     (out / "video.json").write_text(json.dumps({"config": {"scene": "moving_object"}}))
     with pytest.raises(InputError, match="other settings"):
         run_video("colorwheel", out, frames=2, progress=False)
+
+
+def test_default_solver_follows_the_calibrated_model(tmp_path):
+    """Where the calibration carries the lens's PSF (``paper``) the default solver is FISTA-TV:
+    the temporal term, GAP-TV's only, is then refused by name; on ``small`` GAP-TV stays."""
+    from kaleidospec.calibrate import deconvolution_radii
+    from kaleidospec.video import run_video
+    from sim.design import get_design
+
+    assert deconvolution_radii(get_design("small")) is None
+    radii = deconvolution_radii(get_design("paper"))
+    assert radii is not None and radii.min() > 1.0
+    with pytest.raises(InputError, match="gap-tv solver only"):
+        run_video("colorwheel", tmp_path / "p", design="paper", frames=2, temporal=0.1,
+                  progress=False)
+    assert not (tmp_path / "p").exists()
