@@ -36,7 +36,7 @@ Usage::
     python3 tools/exp_views.py --design paper --oracle --oracle-views 5
 
 ``--design paper`` simulates the paper's full 3376×2704 sensor and 26 bands (minutes of
-transport and calibration; the exact operator takes about ten minutes a reconstruction on 2
+transport and calibration; the exact operator takes 10–20 minutes a reconstruction on 2
 cores). ``--set`` accepts any design field (``kaleidospec design show`` lists them).
 """
 
@@ -306,8 +306,10 @@ def plot_psnr(results: dict, views, path: Path, title: str) -> None:
                           (axes[1], "psnr_bandwise", "PSNR, paper's protocol")):
         for lab, res in results.items():
             line, = ax.plot(views, [r[key] for r in res["rows"]], "o-", label=lab)
-            if all("oracle" in r for r in res["rows"]):
-                ax.plot(views, [r["oracle"][key] for r in res["rows"]], ":", marker=".",
+            done = [r for r in res["rows"] if "oracle" in r]
+            if done:
+                ax.plot([r["views"] for r in done], [r["oracle"][key] for r in done], ":",
+                        marker=".",
                         color=line.get_color(), label=f"{lab} (oracle operator)")
         ax.plot(pv, [PAPER_FIG7[n] for n in pv], "k--s", label="paper Fig. 7")
         ax.set_xlabel("number of views")
