@@ -93,23 +93,24 @@ def operator_from_calibration(cal: Calibration, view_ids=None, model: str = "aut
         ``(H, W) = cal.footprint_grid`` for the footprint model; the shifted and smeared
         models inside a :class:`~recon.operators.blur.BlurredOperator` when ``cal.psf`` is set.
     """
-    op = _unblurred(cal, view_ids, model, band_scale)
-    if cal.psf is None or resolve_model(cal, model) == "footprint":
+    kind = resolve_model(cal, model)
+    op = _unblurred(cal, view_ids, kind, band_scale)
+    if cal.psf is None or kind == "footprint":
         return op
     from recon.operators.blur import BlurredOperator
 
     return BlurredOperator(op, cal.psf)
 
 
-def _unblurred(cal: Calibration, view_ids, model: str, band_scale):
-    """:func:`operator_from_calibration` without the sensor's PSF."""
+def _unblurred(cal: Calibration, view_ids, kind: str, band_scale):
+    """:func:`operator_from_calibration` of the resolved model ``kind`` without the sensor's
+    PSF."""
     from recon.operators.calibrated import CalibratedCassi
     from recon.operators.smeared import SmearedCassi
     from recon.operators.sparse import SparseMatrixOperator
     from recon.operators.warp import HomographyWarp
 
     idx = _select(cal, view_ids)
-    kind = resolve_model(cal, model)
     h, w, n_bands = cal.cube_shape
     view_shape = cal.view_shape
     scale = np.ones(n_bands) if band_scale is None else np.asarray(band_scale, np.float64)

@@ -138,6 +138,19 @@ def test_bad_inputs(calibrated):
         operator_from_calibration({"view_ids": IDS})
 
 
+def _two_views(rng, k, n_bands, hv, wm):
+    """A centre and a mirrored view, three bands with smear sampling positions (the smeared
+    model's input), random mask images."""
+    phi = np.array([[0.0, 2.2, 4.0]] * k)
+    pos = np.stack([phi - 0.6, phi + 0.6], axis=2).clip(0, 4.0)
+    return build_calibration(
+        view_ids=(0, 1), view_boxes=[(0, 30, hv, wm), (0, 0, hv, wm)],
+        box_homographies=np.stack([np.eye(3), np.array([[-1, 0, wm - 1.0], [0, 1, 0],
+                                                        [0, 0, 1]])]),
+        mask_images=rng.random((k, n_bands, hv, wm)), wavelengths=[450.0, 550.0, 650.0],
+        dispersion=phi, checker_dispersion=phi[:, 1], band_positions=pos, grid="centre")
+
+
 def test_model_selection_smeared_and_shifted():
     import dataclasses
 
@@ -146,14 +159,7 @@ def test_model_selection_smeared_and_shifted():
 
     rng = np.random.default_rng(21)
     k, n_bands, hv, wm = 2, 3, 12, 24
-    phi = np.array([[0.0, 2.2, 4.0]] * k)
-    pos = np.stack([phi - 0.6, phi + 0.6], axis=2).clip(0, 4.0)
-    cal = build_calibration(
-        view_ids=(0, 1), view_boxes=[(0, 30, hv, wm), (0, 0, hv, wm)],
-        box_homographies=np.stack([np.eye(3), np.array([[-1, 0, wm - 1.0], [0, 1, 0],
-                                                        [0, 0, 1]])]),
-        mask_images=rng.random((k, n_bands, hv, wm)), wavelengths=[450.0, 550.0, 650.0],
-        dispersion=phi, checker_dispersion=phi[:, 1], band_positions=pos, grid="centre")
+    cal = _two_views(rng, k, n_bands, hv, wm)
     shifted = operator_from_calibration(cal)                    # no view masks yet: "auto"
     assert isinstance(shifted, CalibratedCassi)
     with pytest.raises(InputError, match="recalibrate"):
@@ -232,14 +238,7 @@ def test_a_calibrated_psf_blurs_the_shifted_and_smeared_models_not_the_footprint
 
     rng = np.random.default_rng(23)
     k, n_bands, hv, wm = 2, 3, 12, 24
-    phi = np.array([[0.0, 2.2, 4.0]] * k)
-    pos = np.stack([phi - 0.6, phi + 0.6], axis=2).clip(0, 4.0)
-    cal = build_calibration(
-        view_ids=(0, 1), view_boxes=[(0, 30, hv, wm), (0, 0, hv, wm)],
-        box_homographies=np.stack([np.eye(3), np.array([[-1, 0, wm - 1.0], [0, 1, 0],
-                                                        [0, 0, 1]])]),
-        mask_images=rng.random((k, n_bands, hv, wm)), wavelengths=[450.0, 550.0, 650.0],
-        dispersion=phi, checker_dispersion=phi[:, 1], band_positions=pos, grid="centre")
+    cal = _two_views(rng, k, n_bands, hv, wm)
     hv_, wv = cal.view_shape
     a = sp.random(k * hv * wm, n_bands * 5 * 8, density=0.05, random_state=rng, format="csr",
                   dtype=np.float32)

@@ -9,17 +9,11 @@ bands, rows and columns, so that every branch of the kernels runs.
 import numpy as np
 import pytest
 
+from kernel_checks import RTOL32, assert_operator_matches_numpy, rel
 from recon import kernels
 from recon.operators import CalibratedCassi, Flip, HomographyWarp, Translate, dot_test
 
 pytestmark = pytest.mark.skipif(not kernels.enabled(), reason="Numba kernels switched off")
-
-RTOL32 = 1e-6
-
-
-def _rel(a, b):
-    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
-    return float(np.abs(a - b).max() / max(np.abs(b).max(), 1e-30))
 
 
 def _homography(rng, shape, out_shape):
@@ -67,17 +61,7 @@ OPS = _operators()
 
 @pytest.mark.parametrize("name", sorted(OPS))
 def test_forward_and_adjoint_match_numpy(name):
-    op = OPS[name]
-    rng = np.random.default_rng(22)
-    x = rng.standard_normal(op.ishape).astype(np.float32)
-    y = rng.standard_normal(op.oshape).astype(np.float32)
-    fwd, adj = op.forward(x), op.adjoint(y)
-    with kernels.numpy_only():
-        fwd_ref, adj_ref = op.forward(x), op.adjoint(y)
-    assert fwd.dtype == adj.dtype == np.float32
-    assert fwd.shape == op.oshape and adj.shape == op.ishape
-    assert _rel(fwd, fwd_ref) < RTOL32
-    assert _rel(adj, adj_ref) < RTOL32
+    assert_operator_matches_numpy(OPS[name], 22)
 
 
 @pytest.mark.parametrize("name", sorted(OPS))
@@ -99,7 +83,7 @@ def test_adjoint_add_is_base_plus_scaled_adjoint(name, where):
     got = op.adjoint_add(y, b, 0.37, out=out)
     assert got.dtype == np.float32
     assert got is out if out is not None else got is not b
-    assert _rel(got, want) < RTOL32
+    assert rel(got, want) < RTOL32
     if where != "base":
         assert np.array_equal(b, base)          # the base is only read
 
@@ -116,8 +100,8 @@ def test_band_scale_is_the_scaled_mask_images():
     y = rng.standard_normal(scaled.oshape).astype(np.float32)
     for ctx in (kernels.threads, kernels.numpy_only):
         with ctx():
-            assert _rel(scaled.forward(x), copied.forward(x)) < RTOL32
-            assert _rel(scaled.adjoint(y), copied.adjoint(y)) < RTOL32
+            assert rel(scaled.forward(x), copied.forward(x)) < RTOL32
+            assert rel(scaled.adjoint(y), copied.adjoint(y)) < RTOL32
     np.testing.assert_allclose(scaled.row_norms_sq(), copied.row_norms_sq(), rtol=1e-6)
 
 

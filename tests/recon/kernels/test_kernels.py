@@ -10,6 +10,7 @@ with single rows and columns, so that every edge branch runs.
 import numpy as np
 import pytest
 
+from kernel_checks import RTOL32, assert_operator_matches_numpy, rel
 from recon import kernels
 from recon.operators import (
     CassiOperator, Translate, View, dot_test, kaleidoscope_cassi, standard_cassi,
@@ -20,15 +21,6 @@ from recon.solvers.fista_tv import _extrapolate, _restart_dot
 from recon.solvers.twist import _combine, _combine_tv
 
 pytestmark = pytest.mark.skipif(not kernels.enabled(), reason="Numba kernels switched off")
-
-# float32 rounding is 6e-8; the kernels reorder sums and contract multiply-adds, so they
-# differ from NumPy by a few roundings, never more.
-RTOL32 = 1e-6
-
-
-def _rel(a, b):
-    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
-    return float(np.abs(a - b).max() / max(np.abs(b).max(), 1e-30))
 
 
 # -- the switch ----------------------------------------------------------------------------
@@ -80,14 +72,14 @@ class _nothing:
 def test_chambolle_prox_matches_numpy(shape, isotropic, n_iter):
     (x, p), (xr, pr) = _prox_pair(shape, np.float32, isotropic, n_iter, True, 1)
     assert x.dtype == np.float32
-    assert _rel(x, xr) < RTOL32 * (1 + n_iter)
-    assert _rel(p, pr) < RTOL32 * (1 + n_iter)
+    assert rel(x, xr) < RTOL32 * (1 + n_iter)
+    assert rel(p, pr) < RTOL32 * (1 + n_iter)
 
 
 @pytest.mark.parametrize("isotropic", [True, False])
 def test_chambolle_prox_cold_and_in_place(isotropic):
     (x, p), (xr, pr) = _prox_pair((3, 11, 8), np.float32, isotropic, 4, False, 2, alias=True)
-    assert _rel(x, xr) < 5 * RTOL32 and _rel(p, pr) < 5 * RTOL32
+    assert rel(x, xr) < 5 * RTOL32 and rel(p, pr) < 5 * RTOL32
 
 
 def test_kernels_are_float32_only():
@@ -100,7 +92,7 @@ def test_chambolle_prox_many_iterations_converge_alike():
     # 200 iterations in one wavefront pass against 200 NumPy iterations: rounding does not
     # build up into a different answer.
     (x, _), (xr, _) = _prox_pair((2, 20, 17), np.float32, True, 200, False, 3)
-    assert _rel(x, xr) < 1e-5
+    assert rel(x, xr) < 1e-5
 
 
 @pytest.mark.parametrize("shape", SHAPES)
@@ -141,16 +133,7 @@ OPS = _operators()
 
 @pytest.mark.parametrize("name", sorted(OPS))
 def test_cassi_forward_and_adjoint_match_numpy(name):
-    op = OPS[name]
-    rng = np.random.default_rng(6)
-    x = rng.standard_normal(op.ishape).astype(np.float32)
-    y = rng.standard_normal(op.oshape).astype(np.float32)
-    fwd, adj = op.forward(x), op.adjoint(y)
-    with kernels.numpy_only():
-        fwd_ref, adj_ref = op.forward(x), op.adjoint(y)
-    assert fwd.dtype == adj.dtype == np.float32
-    assert _rel(fwd, fwd_ref) < RTOL32
-    assert _rel(adj, adj_ref) < RTOL32
+    assert_operator_matches_numpy(OPS[name], 6)
 
 
 @pytest.mark.parametrize("name", sorted(OPS))
@@ -170,10 +153,10 @@ def test_adjoint_add_is_base_plus_scaled_adjoint(name, in_place):
     b = base.copy()
     got = op.adjoint_add(y, b, 0.37, out=b if in_place else None)
     assert got.dtype == np.float32 and (got is b) == in_place
-    assert _rel(got, want) < RTOL32
+    assert rel(got, want) < RTOL32
     with kernels.numpy_only():
         ref = op.adjoint_add(y, base, 0.37)
-    assert _rel(got, ref) < RTOL32
+    assert rel(got, ref) < RTOL32
 
 
 # -- vector updates --------------------------------------------------------------------------
@@ -186,11 +169,11 @@ def test_vector_updates_match_numpy():
     _combine(-0.67, u, 0.36, v, 3.3, w, out)
     with kernels.numpy_only():
         _combine(-0.67, u, 0.36, v, 3.3, w, ref)
-    assert _rel(out, ref) < RTOL32
+    assert rel(out, ref) < RTOL32
     _extrapolate(u, v, 0.8, out, None)
     with kernels.numpy_only():
         _extrapolate(u, v, 0.8, ref, None)
-    assert _rel(out, ref) < RTOL32
+    assert rel(out, ref) < RTOL32
     # Longer than one block of the kernel, so that several partial sums are added.
     a, b, c = (rng.standard_normal(100_003).astype(np.float32) for _ in range(3))
     d = _restart_dot(a, b, c, np.empty_like(a), None)
@@ -208,7 +191,7 @@ def test_combine_with_tv_matches_numpy(isotropic, shape):
     tv = _combine_tv(-0.67, u, 0.36, v, 3.3, w, out, isotropic)
     with kernels.numpy_only():
         tv_ref = _combine_tv(-0.67, u, 0.36, v, 3.3, w, ref, isotropic)
-    assert _rel(out, ref) < RTOL32
+    assert rel(out, ref) < RTOL32
     assert tv == pytest.approx(tv_ref, rel=RTOL32)
 
 
@@ -241,7 +224,7 @@ def test_solvers_agree_with_the_numpy_path(name):
         ref = solve(name, op, g, iters=20, tau=0.05)
     assert fast.iterations == ref.iterations
     # 20 iterations of a nonlinear map amplify roundings a little, no more.
-    assert _rel(fast.x, ref.x) < 1e-4
+    assert rel(fast.x, ref.x) < 1e-4
 
 
 def test_solves_from_several_threads_at_once():
