@@ -7,14 +7,15 @@ import numpy as np
 
 
 def shift_matrix(phi: float, w_in: int, w_out: int) -> np.ndarray:
-    """Row-wise linear-interpolation shift: out[x] = (1-t) v[x-a] + t v[x-a-1]."""
+    """Row-wise linear-interpolation shift: out[x] = (1-t) v[x-a] + t v[x-a-1] for the x in
+    [0, w_out) (what lands outside is dropped)."""
     a = math.floor(phi)
     t = phi - a
     s = np.zeros((w_out, w_in))
     for u in range(w_in):
-        s[u + a, u] += 1.0 - t
-        if t > 0:
-            s[u + a + 1, u] += t
+        for x, weight in ((u + a, 1.0 - t), (u + a + 1, t)):
+            if 0 <= x < w_out and weight > 0:
+                s[x, u] += weight
     return s
 
 

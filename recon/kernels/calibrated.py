@@ -71,8 +71,14 @@ def _gather_row(x, indptr, indices, data, i, v):
 
 @jit(refcount=False)
 def _shift_add(vl, cr, al, b0, b1, sub, acc):
-    r"""``acc[x]`` :math:`\mathrel{+}= C[x]\,(c^0 v[x-a] + c^1 v[x-a-1])`, one band of one row."""
+    r"""``acc[x]`` :math:`\mathrel{+}= C[x]\,(c^0 v[x-a] + c^1 v[x-a-1])`, one band of one row;
+    columns ``x`` outside the row are dropped."""
     wv = vl.shape[0]
+    if al < 0 or al + wv + sub > acc.shape[0]:
+        _clipped_tap(vl, cr, al, b0, acc)
+        if sub:
+            _clipped_tap(vl, cr, al + 1, b1, acc)
+        return
     if not sub:
         o, c = acc[al:al + wv], cr[al:al + wv]
         for j in range(wv):
@@ -84,6 +90,19 @@ def _shift_add(vl, cr, al, b0, b1, sub, acc):
     for j in range(wv - 1):
         o[j] += c[j] * (b0 * v1[j] + b1 * v0[j])
     acc[al + wv] += cr[al + wv] * (b1 * vl[wv - 1])
+
+
+@jit(refcount=False)
+def _clipped_tap(vl, cr, al, b, acc):
+    r"""``acc[x]`` :math:`\mathrel{+}= C[x]\, b\, v[x-a]` for the ``x`` inside the row (a band
+    whose image reaches past an edge of the crop)."""
+    j0 = max(0, -al)
+    j1 = min(vl.shape[0], acc.shape[0] - al)
+    if j1 <= j0:
+        return
+    o, c, v = acc[al + j0:al + j1], cr[al + j0:al + j1], vl[j0:j1]
+    for j in range(j1 - j0):
+        o[j] += c[j] * (b * v[j])
 
 
 @jit(refcount=False)
@@ -172,18 +191,22 @@ def shift_adjoint(y, cm, a, c0, c1, sub, mode, base, scale, out):
     """
     n_bands, hv, wv = out.shape
     wm = y.shape[1]
+    # C y on the row with zeros on either side, as far as any band's image reaches past the
+    # crop (and one column for the second tap of the last band).
+    lo = max(0, -np.min(a))
+    hi = max(1, np.max(a) + wv + 1 - wm)
     n_tasks = (hv + _ROWS - 1) // _ROWS
     for task in prange(n_tasks):
-        cy = np.empty(wm + 1, dtype=out.dtype)
+        cy = np.zeros(lo + wm + hi, dtype=out.dtype)
         z = np.empty(wv, dtype=out.dtype)
         for i in range(task * _ROWS, min(hv, (task + 1) * _ROWS)):
             yr = y[i]
+            cyr = cy[lo:lo + wm]
             for l in range(n_bands):
                 cr = cm[l, i]
                 for x_ in range(wm):
-                    cy[x_] = cr[x_] * yr[x_]
-                cy[wm] = 0
-                al = a[l]
+                    cyr[x_] = cr[x_] * yr[x_]
+                al = a[l] + lo
                 b0 = c0[l]
                 p0 = cy[al:al + wv]
                 if sub[l]:

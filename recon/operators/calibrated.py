@@ -12,8 +12,10 @@ deconvolved for diffraction).  The forward model becomes
 where :math:`S_{k,l}` places the view image (width :math:`W_v`) at its measured dispersion
 offset :math:`\varphi_{k,l}` on the sensor crop (linear interpolation for sub-pixel offsets).
 Unlike :class:`~recon.operators.cassi.CassiOperator`, the offsets here are *absolute* column
-positions on the crop of width :math:`W_m` the mask images were cut to, not normalised: each
-band must land inside it.
+positions on the crop of width :math:`W_m` the mask images were cut to, not normalised.  A
+band's image may reach past either edge of the crop (a view image that starts before the
+band's measured light, :func:`recon.calibration.extent.extend_views`): the columns that land
+outside are not measured, so :math:`S_{k,l}` keeps only the rows of the crop.
 
 A per-band scale :math:`s_l` (``band_scale``, e.g. the inverse radiometric gains) multiplies
 :math:`C_{k,l}`; it is folded into the interpolation weights, so the mask images are never
@@ -46,8 +48,8 @@ class CalibratedCassi(LinearOperator):
         :math:`C_{k,l}` on the sensor (a 3-D array is one view).
     offsets : (L,) or (K, L) array_like of float
         Absolute column where column 0 of the view image lands for each band (+ = larger x);
-        one row shared by all views or one per view.  Must satisfy
-        :math:`0 \le \varphi` and :math:`\lceil\varphi\rceil + W_v \le W_m`.
+        one row shared by all views or one per view.  Every band's image must overlap the
+        crop, :math:`-W_v < \varphi < W_m`; columns outside :math:`[0, W_m)` are dropped.
     warps : sequence of (Warp or None), optional
         :math:`W_k` per view (``None`` = identity).
     cube_shape : (L, H, W), optional
@@ -81,9 +83,6 @@ class CalibratedCassi(LinearOperator):
                               for i, r in enumerate(phi)])
         else:
             raise InputError(f"offsets must be (L,) or (K={k}, L), got shape {phi.shape}")
-        if np.min(table) < 0:
-            raise InputError(f"calibrated offsets are absolute sensor columns and must be >= 0, "
-                             f"got min {np.min(table):g}")
         warps = as_warps(warps, k, "mask_images")
         cs = cube_shape_of(cube_shape, n_bands, warps, (hv, wm - int(np.ceil(np.max(table)))))
         bound = []
@@ -99,10 +98,15 @@ class CalibratedCassi(LinearOperator):
         for i, (w, row) in enumerate(zip(bound, self._parts)):
             wv = w.out_shape[1]
             for l, (a, t) in enumerate(row):
-                if a + wv + (t > 0) > wm:
-                    raise InputError(f"view {i} band {l}: offset {table[i, l]:g} + view width {wv}"
-                                     f" does not fit in the mask image width {wm}")
+                if a + wv + (t > 0) <= 0 or a >= wm:
+                    raise InputError(f"view {i} band {l}: at offset {table[i, l]:g} the view image"
+                                     f" ({wv} columns) misses the mask image (width {wm})")
         self.n_views, self.n_bands = k, n_bands
+        # Columns of zeros on either side of the crop that hold every band's whole image: the
+        # NumPy path works on crops padded by them and cuts the measured columns out after.
+        self._pad = (max([0] + [-a for row in self._parts for a, _ in row]),
+                     max([0] + [a + w.out_shape[1] + (t > 0) - wm
+                                for w, row in zip(bound, self._parts) for a, t in row]))
         scale = np.ones(n_bands) if band_scale is None else np.asarray(band_scale, np.float64)
         if scale.shape != (n_bands,) or not np.all(np.isfinite(scale)):
             raise InputError(f"band_scale must be {n_bands} finite numbers, got shape "
@@ -124,13 +128,16 @@ class CalibratedCassi(LinearOperator):
             return self._forward_kernel(np.ascontiguousarray(x))
         cm = self._cmasks(dt)
         w0, w1 = self._taps
-        out = np.zeros(self.oshape, dtype=dt)
+        lo, hi = self._pad
+        k_, hv, wm = self.oshape
+        out = np.zeros((k_, hv, lo + wm + hi), dtype=dt)
         for k, warp in enumerate(self.warps):
             xv = warp.apply(x)
             wv = warp.out_shape[1]
             buf = np.empty(warp.out_shape, dtype=dt)
             for l, (a, t) in enumerate(self._parts[k]):
-                c = cm[k, l]
+                c = self._padded(cm[k, l])
+                a += lo
                 d0 = out[k, :, a:a + wv]
                 np.multiply(xv[l], c[:, a:a + wv], out=buf)
                 if w0[k, l] != 1.0:
@@ -142,7 +149,15 @@ class CalibratedCassi(LinearOperator):
                 np.multiply(xv[l], c[:, a + 1:a + 1 + wv], out=buf)
                 buf *= w1[k, l]
                 np.add(d1, buf, out=d1)
-        return out
+        return out if lo == hi == 0 else np.ascontiguousarray(out[:, :, lo:lo + wm])
+
+    def _padded(self, a):
+        """``a`` (..., Wm) with the zero columns of ``self._pad`` on either side (no copy when
+        there are none)."""
+        lo, hi = self._pad
+        if lo == hi == 0:
+            return a
+        return np.pad(a, [(0, 0)] * (a.ndim - 1) + [(lo, hi)])
 
     def _adjoint(self, y):
         dt = work_dtype(y)
@@ -152,6 +167,8 @@ class CalibratedCassi(LinearOperator):
             return self._adjoint_kernel(np.ascontiguousarray(y), None, 1.0, out)
         cm = self._cmasks(dt)
         w0, w1 = self._taps
+        lo = self._pad[0]
+        y = self._padded(y)
         out = np.zeros(self.ishape, dtype=dt)
         for k, warp in enumerate(self.warps):
             wv = warp.out_shape[1]
@@ -159,7 +176,8 @@ class CalibratedCassi(LinearOperator):
             tmp = np.empty((self.n_bands,) + warp.out_shape, dtype=dt)
             buf = np.empty(warp.out_shape, dtype=dt)
             for l, (a, t) in enumerate(self._parts[k]):
-                c = cm[k, l]
+                c = self._padded(cm[k, l])
+                a += lo
                 z = tmp[l]
                 np.multiply(y[k, :, a:a + wv], c[:, a:a + wv], out=z)
                 if w0[k, l] != 1.0:
@@ -260,15 +278,17 @@ class CalibratedCassi(LinearOperator):
     def row_norms_sq(self) -> np.ndarray:
         r"""Diagonal of :math:`HH^\top`: :math:`\sum_l s_l^2 C_{k,l}^2 \|(S_{k,l}W_k)_i\|^2`."""
         if self._row_norms is None:
+            lo, hi = self._pad
+            hv, wm = self.oshape[1:]
             out = np.zeros(self.oshape, dtype=np.float64)
-            q = np.empty(self.oshape[1:], dtype=np.float64)
+            q = np.empty((hv, lo + wm + hi), dtype=np.float64)
             for k, warp in enumerate(self.warps):
                 n, c = warp.norm_parts()
                 for l, (a, t) in enumerate(self._parts[k]):
                     q.fill(0.0)
-                    shift_row_norms(n, c, a, t, q)
+                    shift_row_norms(n, c, a + lo, t, q)
                     out[k] += (self.band_scale[l] * self.mask_images[k, l].astype(np.float64)
-                               ) ** 2 * q
+                               ) ** 2 * q[:, lo:lo + wm]
             self._row_norms = out
         return self._row_norms.copy()
 

@@ -53,6 +53,12 @@ def _operators():
                                       (4, 6, 8), band_scale=[0.5, 2.0, 1.0, 3.25]),
         "band-scale-zero": CalibratedCassi(cm(1, 3, 5, 9), [0.5, 1.5, 2.0],
                                            cube_shape=(3, 5, 6), band_scale=[1.0, 0.0, -2.0]),
+        # View images that start before the crop or end after it (columns dropped there).
+        "past-the-edges": CalibratedCassi(
+            cm(3, 4, 6, 10), [[-2.5, -1, 0.5, 3.25], [-4, 0, 2, 5.5], [1, 2, 3, 4]],
+            [None, Flip(1), _homography(rng, (6, 8), (6, 8))], (4, 6, 8),
+            band_scale=[0.5, 2.0, 1.0, 3.25]),
+        "wider-than-the-crop": CalibratedCassi(cm(1, 2, 4, 5), [-1.5, -3], cube_shape=(2, 4, 9)),
     }
 
 

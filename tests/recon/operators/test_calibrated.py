@@ -49,6 +49,29 @@ def test_matches_dense_reference(k, l_, h, w, extra, data, seed):
     assert dot_test(op, rng) < 1e-6
 
 
+@SETTINGS
+@given(k=st.integers(1, 3), l_=st.integers(1, 3), h=st.integers(1, 3), w=st.integers(1, 6),
+       wm=st.integers(1, 8), data=st.data(), seed=st.integers(0, 2**16))
+def test_bands_past_the_crop_edges(k, l_, h, w, wm, data, seed):
+    # A view image that starts before the crop (negative offsets) or ends after it: the
+    # columns outside [0, Wm) are dropped, in the NumPy path as in the dense reference.
+    rng = np.random.default_rng(seed)
+    offsets = np.array([[data.draw(st.floats(-w + 0.01, wm - 0.01).map(lambda v: round(v, 2)))
+                         for _ in range(l_)] for _ in range(k)])
+    kinds = [data.draw(st.sampled_from([None, (0,), (1,)])) for _ in range(k)]
+    cm = rng.random((k, l_, h, wm)).astype(np.float32)
+    op = CalibratedCassi(cm, offsets, [None if a is None else Flip(a) for a in kinds],
+                         (l_, h, w))
+    a = dense_calibrated(cm, offsets, [np.eye(h * w) if a is None else flip_matrix((h, w), a)
+                                       for a in kinds], (l_, h, w))
+    x = rng.standard_normal(op.ishape)
+    y = rng.standard_normal(op.oshape)
+    np.testing.assert_allclose(op.forward(x).ravel(), a @ x.ravel(), atol=1e-9)
+    np.testing.assert_allclose(op.adjoint(y).ravel(), a.T @ y.ravel(), atol=1e-9)
+    np.testing.assert_allclose(op.row_norms_sq().ravel(), np.diag(a @ a.T), atol=1e-9)
+    assert dot_test(op, rng) < 1e-6
+
+
 def test_translate_warp_dot_and_row_norms():
     rng = np.random.default_rng(7)
     cm = rng.random((2, 3, 4, 9)).astype(np.float32)
@@ -89,9 +112,10 @@ def test_default_cube_shape_and_3d_masks():
 
 
 @pytest.mark.parametrize("make", [
-    lambda: CalibratedCassi(np.ones((1, 2, 3, 6)), [0, 4], cube_shape=(2, 3, 3)),   # 4+3 > 6
-    lambda: CalibratedCassi(np.ones((1, 2, 3, 6)), [0, 2.5], cube_shape=(2, 3, 4)),  # 3+4 > 6
-    lambda: CalibratedCassi(np.ones((1, 2, 3, 6)), [-1, 0], cube_shape=(2, 3, 3)),
+    # A band whose image misses the crop: wholly right of it, wholly left of it.
+    lambda: CalibratedCassi(np.ones((1, 2, 3, 6)), [0, 6], cube_shape=(2, 3, 3)),
+    lambda: CalibratedCassi(np.ones((1, 2, 3, 6)), [0, -3], cube_shape=(2, 3, 3)),
+    lambda: CalibratedCassi(np.ones((1, 2, 3, 6)), [-3.5, 0], cube_shape=(2, 3, 2)),
     lambda: CalibratedCassi(np.ones((1, 2, 3, 6)), [0, 1, 2], cube_shape=(2, 3, 3)),
     lambda: CalibratedCassi(np.ones((1, 2, 3, 6)), [0, np.nan], cube_shape=(2, 3, 3)),
     lambda: CalibratedCassi(np.full((1, 2, 3, 6), np.nan), [0, 1], cube_shape=(2, 3, 3)),
