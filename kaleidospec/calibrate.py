@@ -195,7 +195,7 @@ def calibrate_from_captures(design, *, models=None, repeats: int = 4, progress: 
     from kaleidospec.report import progress_bar
     from recon.calibration import (airy_kernel, airy_radius_px, build_calibration,
                                    find_view_boxes, fit_dispersion, line_centroids,
-                                   mask_images, view_homographies)
+                                   mask_images, view_homographies, with_leads)
     from recon.calibration.dispersion import band_mean_positions, band_positions
     from recon.calibration.mask import view_stack, white_levels
     from recon.errors import InputError
@@ -260,6 +260,10 @@ def calibrate_from_captures(design, *, models=None, repeats: int = 4, progress: 
             gains=gains0, design_hash=design.hash, captures=caps.names(),
             band_positions=(band_positions(fit, intervals, SMEAR_SAMPLES)
                             if "smeared" in extra else None))
+        # Views whose light begins before their offsets (recon.calibration.extent: on `paper`
+        # the left, top and bottom views code 13-19 columns there): the shifted model starts
+        # their images that much earlier.
+        cal = with_leads(cal)
         if airy is not None:
             # The masks are now sharp, but the lens blurs the coded image after the mask: the
             # shifted and smeared models blur their measurement with the diffraction-limited

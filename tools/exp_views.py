@@ -34,7 +34,7 @@ Usage::
     python3 tools/exp_views.py --views 1,2,3,5,9 --oracle --model footprint
     python3 tools/exp_views.py --scenes natural,my_cube.exr --iters 50 --out out/exp_views
     python3 tools/exp_views.py --design paper --oracle --oracle-views 5
-    python3 tools/exp_views.py --design paper --views 1,2,3,5 --extend-views
+    python3 tools/exp_views.py --design paper --views 1,2,3,5 [--no-leads]
 
 ``--design paper`` simulates the paper's full 3376×2704 sensor and 26 bands (minutes of
 transport and calibration; the exact operator takes 10–20 minutes a reconstruction on 2
@@ -372,9 +372,9 @@ def main(argv=None) -> int:
                          "(the optics without the frame's Monte Carlo draw)")
     ap.add_argument("--model", choices=RUN_MODELS, default=DEFAULT_MODEL,
                     help="calibrated forward model (footprint: also the comb captures)")
-    ap.add_argument("--extend-views", action="store_true",
-                    help="shifted model: start every view image where its light begins "
-                         "(recon.calibration.extent.extend_views; the grid widens with it)")
+    ap.add_argument("--no-leads", action="store_true",
+                    help="shifted model: every view image starts at its offsets, as before "
+                         "recon.calibration.extent (for comparison)")
     ap.add_argument("--progress", action="store_true")
     a = ap.parse_args(argv)
 
@@ -412,14 +412,13 @@ def main(argv=None) -> int:
     cal = calibrate(design, model=a.model, progress=a.progress)
     cal_s = time.perf_counter() - t0
     print(f"calibration ready in {cal_s:.1f} s", flush=True)
-    if a.extend_views:
-        from recon.calibration import extend_views
+    if cal.view_leads is not None:
+        print(f"view leads (recon.calibration.extent): {cal.view_leads.tolist()} columns"
+              f"{' (dropped: --no-leads)' if a.no_leads else ''}", flush=True)
+    if a.no_leads:
+        import dataclasses
 
-        before = cal.cube_shape
-        cal = extend_views(cal)
-        print(f"views extended (recon.calibration.extent): lead "
-              f"{-int(np.floor(cal.offsets.min()))} px, grid {before[:2]} -> "
-              f"{cal.cube_shape[:2]}", flush=True)
+        cal = dataclasses.replace(cal, view_leads=None)
 
     results, images = {}, {}
     for scene in scenes:

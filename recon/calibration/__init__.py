@@ -13,13 +13,13 @@ Works on raw frames only (NumPy, OpenCV, scikit-image), as with real hardware:
 - :mod:`~recon.calibration.operator`: the calibrated operator and the per-view measurements.
 
 Typical order: views → dispersion → masks → geometry → :func:`build_calibration` →
-:func:`extend_views` → reconstruct the ColorChecker → radiometry.
+:func:`with_leads` → reconstruct the ColorChecker → radiometry.
 """
 
 from recon.calibration.dispersion import (DispersionFit, band_mean_positions, band_positions,
                                           fit_dispersion, line_centroids, normalise_offsets,
                                           normalise_offsets_phase)
-from recon.calibration.extent import extend_views, view_leads
+from recon.calibration.extent import lead_columns, measure_leads, with_leads
 from recon.calibration.geometry import (apply_homography, find_corners, refine_homography,
                                         to_view_coordinates, unmask, view_homographies)
 from recon.calibration.mask import airy_kernel, airy_radius_px, mask_images, view_masks
@@ -33,11 +33,11 @@ from recon.calibration.views import VIEW_FLIPS, VIEW_GRID, find_view_boxes
 __all__ = [
     "Calibration", "DispersionFit", "VIEW_FLIPS", "VIEW_GRID", "airy_kernel", "airy_radius_px",
     "apply_gains", "apply_homography", "band_mean_positions", "band_positions",
-    "build_calibration", "calibration_path", "check_design", "extend_views",
+    "build_calibration", "calibration_path", "check_design", "lead_columns",
     "find_corners", "find_view_boxes", "fit_dispersion", "fit_gains", "line_centroids",
     "load_cached", "load_calibration", "mask_images", "measurements", "normalise_offsets",
     "normalise_offsets_phase",
     "operator_from_calibration", "patch_spectra", "read_measurements", "refine_homography",
-    "save_calibration", "to_view_coordinates", "unmask", "view_homographies", "view_leads",
-    "view_masks",
+    "save_calibration", "to_view_coordinates", "unmask", "view_homographies", "view_masks",
+    "measure_leads", "with_leads",
 ]

@@ -1,13 +1,13 @@
 r"""Where each view's light begins: view images that start before the calibrated offsets.
 
 The line captures fix where a scene column lands in every band (the offsets :math:`o_{k,l}`,
-whole columns removed per view), and the operator puts view column :math:`x` of band :math:`l`
-on box column :math:`x + o_{k,l}`: view column 0 is the first column of the box that the
-bluest band can reach.  But a view's mask region need not begin there.  On the paper's design
-the left, top and bottom views' mask images hold light 12–19 px *before* their offsets in every
-band (from the box's first column in the bluest bands, which the box cuts): the mask codes scene
-columns there that a view image starting at column 0 leaves out, and the model predicts none of
-that light (up to 55 % model error in those columns).
+whole columns removed per view), and the shifted model puts view column :math:`x` of band
+:math:`l` on box column :math:`x + o_{k,l}`: view column 0 is the first box column the bluest
+band can reach.  But a view's mask region need not begin there.  On the paper's design the
+left, top and bottom views' mask images hold light 12–19 px *before* their offsets in every
+band (from the box's first column in the bluest bands, which the box cuts): those views code
+scene columns that a view image starting at column 0 leaves out, and the model predicts none
+of that light (up to 55 % model error in those columns).
 
 The *lead* of view :math:`k` is how far its light begins before the offsets,
 
@@ -15,17 +15,19 @@ The *lead* of view :math:`k` is how far its light begins before the offsets,
 
 with :math:`x^{\mathrm{lit}}_{k,l}` the first box column of band :math:`l`'s mask image whose
 column mean exceeds ``level`` × the view's typical open level (as in
-:func:`~recon.calibration.store.coded_columns`).  :func:`extend_views` starts every view image
-:math:`E = \lceil\max_k e_k\rceil` columns earlier, and the reconstruction grid with it, so that
-the centre view stays the identity:
+:func:`~recon.calibration.store.coded_columns`).  A calibration records whole leads
+:math:`E_k = \lceil e_k - \text{tolerance}\rceil^+` (``view_leads``, :func:`lead_columns`), and
+the shifted model (:func:`~recon.calibration.operator.operator_from_calibration`) starts view
+:math:`k`'s image :math:`E_k` columns earlier:
 
-.. math:: o'_{k,l} = o_{k,l} - E, \qquad H'_k = T(E)\, H_k\, T(-E), \qquad
-          W'_v = W_m - \lceil\max o'\rceil = W_v + E,
+.. math:: o'_{k,l} = o_{k,l} - E_k, \qquad H'_k = T(E_k)\, H_k, \qquad W_{v,k} = W_v + E_k,
 
-(:math:`T(t)` the translation by :math:`t` along x), and the grid's width is recomputed with
-:func:`~recon.calibration.store.union_width`.  Bands whose image now begins left of the box
-lose those columns (:class:`~recon.operators.CalibratedCassi` drops them); their mask image is
-dark there anyway.
+(:math:`T(t)` the translation by :math:`t` along x).  The reconstruction grid does not change:
+the centre view keeps :math:`E_0 = 0` (it *is* the grid), and view pixels whose scene point
+falls off the grid see nothing (:class:`~recon.operators.warp.HomographyWarp`).  Band images
+that now begin left of the box lose those columns
+(:class:`~recon.operators.calibrated.CalibratedCassi` drops them); the mask images are dark
+there anyway.
 """
 
 from __future__ import annotations
@@ -37,10 +39,10 @@ import numpy as np
 
 from recon.errors import InputError
 
-__all__ = ["view_leads", "extend_views"]
+__all__ = ["measure_leads", "lead_columns", "with_leads"]
 
 
-def view_leads(mask_images, offsets, level: float = 0.1) -> np.ndarray:
+def measure_leads(mask_images, offsets, level: float = 0.1) -> np.ndarray:
     r"""(K,) :math:`e_k`: how many columns before its offsets each view's light begins.
 
     Parameters
@@ -55,6 +57,11 @@ def view_leads(mask_images, offsets, level: float = 0.1) -> np.ndarray:
     -------
     (K,) float64
         Negative where the light begins after the offsets in every band.
+
+    Raises
+    ------
+    InputError
+        Mismatched shapes, or a view whose mask images hold no light.
     """
     c = np.asarray(mask_images)
     o = np.asarray(offsets, dtype=np.float64)
@@ -68,58 +75,49 @@ def view_leads(mask_images, offsets, level: float = 0.1) -> np.ndarray:
         if lit.size == 0:
             raise InputError(f"view {k}: the mask images hold no light")
         on = prof > level * float(np.median(lit))
-        first = np.where(on.any(axis=1), on.argmax(axis=1), c.shape[3])
         # Bands with no lit column say nothing about where the view begins.
         seen = on.any(axis=1)
-        out[k] = float(np.max(o[k, seen] - first[seen])) if seen.any() else -np.inf
+        out[k] = float(np.max(o[k, seen] - on[seen].argmax(axis=1)))
     return out
 
 
-def extend_views(cal, level: float = 0.1, tolerance: float = 0.25):
-    r"""The calibration with every view image starting :math:`E` columns earlier.
+def lead_columns(cal, level: float = 0.1, tolerance: float = 0.25) -> np.ndarray:
+    r"""(K,) int64 :math:`E_k`: the whole leads of a calibration's views (centre 0).
 
     Parameters
     ----------
     cal : recon.calibration.Calibration
     level : float
-        As for :func:`view_leads`.
+        As for :func:`measure_leads`.
     tolerance : float
-        Leads up to this much past a whole column are rounded down (the lit columns are found
-        to a pixel; the offsets to a few hundredths).
+        Leads up to this much past a whole column are rounded down (lit columns are found to
+        a pixel, the offsets to a few hundredths).
 
     Returns
     -------
-    Calibration
-        ``cal`` itself when no view leads (:math:`E = 0`); otherwise a copy with offsets,
-        homographies and cube shape changed as in the module docstring.  Everything else is
-        shared with ``cal``.
-
-    Raises
-    ------
-    InputError
-        The calibration holds the smeared model's kernels (their columns are box columns that
-        must stay in the box) or the footprint model (whose grid is the target's, not this).
+    (K,) int64
+        At most the dispersion's span :math:`\lceil\max o\rceil` (a longer lead would be another
+        view's light in the box) and less than the view width.
     """
-    from recon.calibration.store import _SNAP, union_width
+    e = measure_leads(cal.mask_images, cal.offsets, level)
+    span = math.ceil(float(cal.offsets.max()) - 1e-6)
+    cap = min(span, cal.view_shape[1] - 1)
+    leads = np.clip(np.ceil(e - tolerance), 0, cap).astype(np.int64)
+    leads[list(cal.view_ids).index(0)] = 0
+    return leads
 
-    leads = view_leads(cal.mask_images, cal.offsets, level)
-    lead = max(0, math.ceil(float(np.max(leads)) - tolerance))
+
+def with_leads(cal, level: float = 0.1, tolerance: float = 0.25):
+    """``cal`` with its ``view_leads`` measured (:func:`lead_columns`); everything else shared."""
+    return dataclasses.replace(cal, view_leads=lead_columns(cal, level, tolerance))
+
+
+def led_view(homography, offsets, lead: int):
+    r"""View :math:`k`'s homography and offsets with its image started ``lead`` columns earlier:
+    :math:`T(E)\,H` and :math:`o - E`."""
     if lead == 0:
-        return cal
-    if cal.tap_start is not None or cal.has_footprint:
-        raise InputError("extend the views before the footprint model is measured, and not "
-                         "with the smeared model's kernels (box columns that must stay in the box)")
-    # A lead longer than the dispersion itself would be light from another view in the box.
-    span = math.ceil(float(cal.offsets.max()) - _SNAP)
-    lead = min(lead, span)
+        return homography, offsets
     t = np.eye(3)
     t[0, 2] = lead
-    ti = np.linalg.inv(t)
-    hs = np.stack([t @ h @ ti for h in cal.homographies])
-    hs /= hs[:, 2:3, 2:3]
-    offsets = cal.offsets - lead
-    wm = cal.mask_images.shape[3]
-    wv = wm - math.ceil(float(offsets.max()) - _SNAP)
-    width = union_width(cal.mask_images, offsets, hs, wv)
-    return dataclasses.replace(cal, offsets=offsets, homographies=hs,
-                               cube_shape=(cal.cube_shape[0], width, cal.n_bands))
+    m = t @ np.asarray(homography, dtype=np.float64)
+    return m / m[2, 2], np.asarray(offsets, dtype=np.float64) - lead

@@ -5,8 +5,9 @@ r"""From a calibration to the forward operator and to the per-view measurements 
 .. math:: g_k = \sum_l C_{k,l} \odot S_{o_{k,l}}\big(W_k f_l\big),
 
 :math:`C` the calibrated mask images, :math:`o` the normalised offsets (absolute columns in the
-view's box) and :math:`W_k` the homography warp (the identity for the centre view) — the
-"shifted-mask" model — or, when the calibration holds it, the "mask, then shift and smear"
+view's box) and :math:`W_k` the homography warp (the identity for the centre view), each view's
+image started ``view_leads`` columns before its offsets where the calibration holds them
+(:mod:`recon.calibration.extent`) — the "shifted-mask" model — or, when the calibration holds it, the "mask, then shift and smear"
 model :class:`recon.operators.smeared.SmearedCassi`
 
 .. math:: g_k = \sum_l D_{k,l}\big(M_k \odot W_k f_l\big),
@@ -105,6 +106,7 @@ def operator_from_calibration(cal: Calibration, view_ids=None, model: str = "aut
 def _unblurred(cal: Calibration, view_ids, kind: str, band_scale):
     """:func:`operator_from_calibration` of the resolved model ``kind`` without the sensor's
     PSF."""
+    from recon.calibration.extent import led_view
     from recon.operators.calibrated import CalibratedCassi
     from recon.operators.smeared import SmearedCassi
     from recon.operators.sparse import SparseMatrixOperator
@@ -123,24 +125,31 @@ def _unblurred(cal: Calibration, view_ids, kind: str, band_scale):
         a.data *= scale[a.indices // (ht * wt)].astype(np.float32)
         return SparseMatrixOperator(a, (n_bands, ht, wt),
                                     (len(idx),) + tuple(cal.view_boxes[0, 2:]))
-    warps = []
-    for i in idx:
-        m = cal.homographies[i]
-        if np.allclose(m, np.eye(3), atol=1e-9) and view_shape == (h, w):
-            warps.append(None)
-        else:
-            warps.append(HomographyWarp(m, (h, w), view_shape))
+    def warp(m, shape):
+        if np.allclose(m, np.eye(3), atol=1e-9) and shape == (h, w):
+            return None
+        return HomographyWarp(m, (h, w), shape)
+
     if kind == "smeared":
+        warps = [warp(cal.homographies[i], view_shape) for i in idx]
         # A band's scale multiplies its kernel: D_kl (M_k * W_k f_l) is linear in the weights.
         return SmearedCassi(cal.view_masks[idx], cal.tap_start[idx],
                             cal.tap_weights[idx] * scale[None, :, None], warps=warps,
                             cube_shape=(n_bands, h, w), width=cal.mask_images.shape[3])
+    # Views whose light begins before their offsets start their images earlier
+    # (recon.calibration.extent): each view its own width.
+    warps, offsets = [], []
+    for i in idx:
+        lead = 0 if cal.view_leads is None else int(cal.view_leads[i])
+        m, o = led_view(cal.homographies[i], cal.offsets[i], lead)
+        warps.append(warp(m, (view_shape[0], view_shape[1] + lead)))
+        offsets.append(o)
     # The scale goes into the operator's interpolation weights: a scaled copy of the used
     # views' mask images would be (K, L, Hv, Wm) float32 more (0.3 GB for 5 paper views).
     # Indexing with a contiguous run of views is a slice, not a copy.
     masks = (cal.mask_images[idx[0]:idx[-1] + 1] if idx == list(range(idx[0], idx[-1] + 1))
              else cal.mask_images[idx])
-    return CalibratedCassi(masks, cal.offsets[idx], warps=warps, cube_shape=(n_bands, h, w),
+    return CalibratedCassi(masks, np.stack(offsets), warps=warps, cube_shape=(n_bands, h, w),
                            band_scale=None if band_scale is None else scale)
 
 

@@ -39,6 +39,13 @@ models blur their measurement again, :class:`~recon.operators.blur.BlurredOperat
 psf              (m, m) float32      the sensor's point-spread function, ``m`` odd, sum 1
 ===============  ==================  ===========================================================
 
+and, optionally (views whose light begins before their offsets,
+:mod:`~recon.calibration.extent`; the shifted model starts their view images earlier),
+
+===============  ==================  ===========================================================
+view_leads       (K,) int64          columns each view image starts before its offsets, >= 0
+===============  ==================  ===========================================================
+
 and ``<name>.json`` holds ``design_hash``, ``cube_shape`` ([H, W, L], the API layout),
 ``view_ids``, ``captures`` (what it was made from) and ``created`` (UTC, ISO 8601).  Both files
 are written atomically (image first, then sidecar); loading validates every field and shape.
@@ -65,13 +72,13 @@ FORMAT = "kaleidospec-calibration"
 VERSION = 1
 #: Calibration code version (part of the cache key, :func:`calibration_path`): bump it when the
 #: capture renderer or the application's calibration steps (kaleidospec.calibrate) change.
-CODE_VERSION = 7
+CODE_VERSION = 8
 _CODE_VERSION: str | None = None
 ARRAY_FIELDS = ("view_boxes", "homographies", "mask_images", "offsets", "gains", "wavelengths")
 #: Arrays a calibration may hold (saved only when set).
 OPTIONAL_ARRAY_FIELDS = ("tap_start", "tap_weights", "view_masks", "smear_gains",
                          "footprint_grid", "footprint_indptr", "footprint_indices",
-                         "footprint_data", "footprint_gains", "psf")
+                         "footprint_data", "footprint_gains", "psf", "view_leads")
 _FOOTPRINT = ("footprint_grid", "footprint_indptr", "footprint_indices", "footprint_data")
 JSON_FIELDS = ("design_hash", "cube_shape", "view_ids", "captures", "created")
 _HASH_RE = re.compile(r"^[0-9A-Za-z_-]{1,128}$")
@@ -107,6 +114,7 @@ class Calibration:
     footprint_data: np.ndarray | None = None
     footprint_gains: np.ndarray | None = None
     psf: np.ndarray | None = None
+    view_leads: np.ndarray | None = None
 
     def __post_init__(self):
         self.view_ids = check_view_ids(self.view_ids)
@@ -143,6 +151,14 @@ class Calibration:
         self.captures = [str(c) for c in self.captures]
         self._check_smeared()
         self._check_footprint()
+        if self.view_leads is not None:
+            leads = _array(self.view_leads, "view_leads", np.float64, (k,))
+            if np.any(leads != np.round(leads)) or np.min(leads) < 0:
+                raise InputError("view_leads must hold non-negative integers")
+            if np.max(leads) >= self.view_shape[1]:
+                raise InputError(f"view_leads up to {int(np.max(leads))} columns: longer than "
+                                 f"the view ({self.view_shape[1]} columns)")
+            self.view_leads = leads.astype(np.int64)
         if self.psf is not None:
             from recon.operators.blur import check_kernel
 

@@ -5,8 +5,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from recon.calibration import apply_homography, build_calibration, extend_views, view_leads
+from recon.calibration import (apply_homography, build_calibration, lead_columns,
+                               load_calibration, measure_leads, operator_from_calibration,
+                               save_calibration, with_leads)
+from recon.calibration.extent import led_view
 from recon.errors import InputError
+from recon.operators import CalibratedCassi, HomographyWarp
 
 K, L, HV, WM = 3, 4, 12, 40
 PHI = np.array([0.0, 2.0, 3.5, 5.0])
@@ -30,50 +34,68 @@ def _cal(masks):
         dispersion=phi, checker_dispersion=phi[:, 2])
 
 
+# The centre's light begins at its offsets; view 1's 4 columns before (cut at the box's first
+# column in band 0); view 2's 2 columns after.
+STARTS = np.stack([np.ceil(PHI), np.maximum(np.ceil(PHI) - 4, 0), np.ceil(PHI) + 2]).astype(int)
+
+
 def test_leads_measure_light_before_the_offsets():
     rng = np.random.default_rng(0)
-    # The centre's light begins at its offsets; view 1's 4 columns before (cut at the box's
-    # first column in band 0); view 2's 2 columns after.
-    starts = np.stack([np.ceil(PHI), np.maximum(np.ceil(PHI) - 4, 0), np.ceil(PHI) + 2])
-    leads = view_leads(_masks(rng, starts.astype(int)), np.stack([PHI] * K))
+    leads = measure_leads(_masks(rng, STARTS), np.stack([PHI] * K))
     np.testing.assert_allclose(leads, [0.0, 4.0, -2.0])
-
-
-def test_extend_views_keeps_every_box_column_and_widens_the_views():
-    rng = np.random.default_rng(1)
-    starts = np.stack([np.ceil(PHI), np.maximum(np.ceil(PHI) - 4, 0), np.ceil(PHI)])
-    cal = _cal(_masks(rng, starts.astype(int)))
-    ext = extend_views(cal)
-    np.testing.assert_allclose(ext.offsets, cal.offsets - 4)
-    assert ext.view_shape == (HV, cal.view_shape[1] + 4)
-    assert ext.cube_shape[1] >= cal.cube_shape[1] + 4
-    np.testing.assert_allclose(ext.homographies[0], np.eye(3), atol=1e-12)
-    # Grid point p lands, in every view and band, on the same box column as before: the grid
-    # and the view images moved together.
-    p = np.array([[3.0, 5.0], [20.0, 9.0]])
-    for k in range(K):
-        before = apply_homography(cal.homographies[k], p)[:, 0, None] + cal.offsets[k]
-        after = apply_homography(ext.homographies[k], p + [4, 0])[:, 0, None] + ext.offsets[k]
-        np.testing.assert_allclose(after, before, atol=1e-9)
-    # The columns before the old view column 0 of view 1 are now on the grid: its first lit
-    # column in band 3 lands on view column >= 0.
-    assert starts[1, 3] - ext.offsets[1, 3] >= 0
-
-
-def test_no_lead_leaves_the_calibration_alone():
-    rng = np.random.default_rng(2)
-    starts = np.stack([np.ceil(PHI)] * K).astype(int)
-    cal = _cal(_masks(rng, starts))
-    assert extend_views(cal) is cal
-
-
-def test_refuses_the_smeared_kernels():
-    rng = np.random.default_rng(3)
-    starts = np.stack([np.ceil(PHI), np.maximum(np.ceil(PHI) - 4, 0), np.ceil(PHI)])
-    cal = _cal(_masks(rng, starts.astype(int)))
-    with_taps = dataclasses.replace(cal, tap_start=np.zeros((K, L)),
-                                    tap_weights=np.ones((K, L, 1)))
-    with pytest.raises(InputError, match="smeared"):
-        extend_views(with_taps)
     with pytest.raises(InputError, match="offsets"):
-        view_leads(cal.mask_images, cal.offsets[:, :2])
+        measure_leads(_masks(rng, STARTS), np.stack([PHI] * K)[:, :2])
+
+
+def test_lead_columns_are_whole_non_negative_and_zero_for_the_centre():
+    rng = np.random.default_rng(1)
+    starts = STARTS.copy()
+    starts[0] -= 2                      # even a centre that leads keeps the grid: 0
+    cal = _cal(_masks(rng, starts))
+    assert lead_columns(cal).tolist() == [0, 4, 0]
+    assert with_leads(cal).view_leads.dtype == np.int64
+
+
+def test_led_view_keeps_every_box_column():
+    # Cube point p lands on the same box column whether view column 0 sits at the offsets or
+    # E columns before them.
+    h = np.array([[-1.02, 0.01, 39.0], [0.0, 1.0, 0.5], [1e-4, 0.0, 1.0]])
+    o = PHI + 0.3
+    m, o2 = led_view(h, o, 4)
+    p = np.array([[3.0, 5.0], [20.0, 9.0]])
+    before = apply_homography(h, p)[:, :1] + o
+    after = apply_homography(m, p)[:, :1] + o2
+    np.testing.assert_allclose(after, before, atol=1e-9)
+    assert led_view(h, o, 0)[0] is h
+
+
+def test_the_shifted_model_starts_led_views_earlier(tmp_path):
+    rng = np.random.default_rng(2)
+    cal = with_leads(_cal(_masks(rng, STARTS)))
+    op = operator_from_calibration(cal, model="shifted")
+    h, w, n_bands = cal.cube_shape
+    wv = cal.view_shape[1]
+    m, o = led_view(cal.homographies[1], cal.offsets[1], 4)
+    by_hand = CalibratedCassi(cal.mask_images,
+                              np.stack([cal.offsets[0], o, cal.offsets[2]]),
+                              [None, HomographyWarp(m, (h, w), (h, wv + 4)),
+                               HomographyWarp(cal.homographies[2], (h, w), (h, wv))],
+                              (n_bands, h, w))
+    x = rng.random(op.ishape).astype(np.float32)
+    np.testing.assert_array_equal(op.forward(x), by_hand.forward(x))
+    # Light the led view's first box columns now receive: the model predicts some there.
+    plain = operator_from_calibration(dataclasses.replace(cal, view_leads=None),
+                                      model="shifted")
+    first = slice(0, int(np.ceil(cal.offsets[1, -1])))
+    assert op.forward(x)[1][:, first].sum() > 1.5 * plain.forward(x)[1][:, first].sum()
+    # Saved and loaded with the calibration.
+    save_calibration(tmp_path / "cal", cal)
+    np.testing.assert_array_equal(load_calibration(tmp_path / "cal").view_leads, [0, 4, 0])
+
+
+@pytest.mark.parametrize("leads", [[0, -1, 0], [0, 1.5, 0], [0, 1000, 0], [0, 1]])
+def test_bad_leads(leads):
+    rng = np.random.default_rng(3)
+    cal = _cal(_masks(rng, STARTS))
+    with pytest.raises(InputError, match="view_leads"):
+        dataclasses.replace(cal, view_leads=np.array(leads))
