@@ -385,10 +385,12 @@ def _row_edges(r, prc, pre, pceT, pccT, cx, cy, X, Y0, Y1, XC):
 
 
 @njit(cache=True, nogil=True)
-def _row_pieces(Y0, Y1, ay, by, H, n_mask, plen, pmr, ptr_):
+def _row_pieces(Y0, Y1, ay, by, H, n_mask, plen, pmr, ptr_, bounds, pfirst, plast):
     """Cut the row's y band at its mask-row and texel-row boundaries (lines shared by all its
     pixels): each gap's mask row and texel row (−1 outside the mask or the cube), and every
-    pixel's share of its own span [Y0, Y1] in each gap.  Returns the number of gaps."""
+    pixel's share of its own span [Y0, Y1] in each gap, and the first and last gap it meets
+    (``pfirst``, ``plast``; its shares are 0 outside them); ``bounds`` (pmax + 1): scratch for
+    the gaps' edges.  Returns the number of gaps."""
     w = Y0.shape[0]
     pmax = plen.shape[1]
     ylo = Y0[0]
@@ -396,7 +398,6 @@ def _row_pieces(Y0, Y1, ay, by, H, n_mask, plen, pmr, ptr_):
     for c in range(w):
         ylo = min(ylo, Y0[c])
         yhi = max(yhi, Y1[c])
-    bounds = np.empty(pmax + 1)
     k = 0
     y = ylo
     bounds[0] = ylo
@@ -421,10 +422,17 @@ def _row_pieces(Y0, Y1, ay, by, H, n_mask, plen, pmr, ptr_):
     for c in range(w):
         y0, y1 = Y0[c], Y1[c]
         inv = 1.0 / (y1 - y0) if y1 > y0 else 0.0
+        first, last = k, -1
         for g in range(k):
             a = max(bounds[g], y0)
             b = min(bounds[g + 1], y1)
-            plen[c, g] = (b - a) * inv if b > a else 0.0
+            v = (b - a) * inv if b > a else 0.0
+            plen[c, g] = v
+            if v != 0.0:
+                first = min(first, g)
+                last = g
+        pfirst[c] = first
+        plast[c] = last
     return k
 
 
@@ -452,7 +460,8 @@ def _bracket(x, XC, IXC, c):
 
 @njit(cache=True, nogil=True, inline="always")
 def _locate(x, xb, lo, hi, ptr):
-    """Index k in [lo, hi] with xb[k] <= x < xb[k+1] (hi + 1: past the end; lo − 1: before)."""
+    """Index k in [lo, hi] with xb[k] <= x < xb[k+1] (hi + 1: past the end; lo − 1: before),
+    walked from ``ptr`` (the previous edge's piece: edges advance by a piece or two)."""
     if x < xb[lo]:
         return lo - 1
     if x >= xb[hi + 1]:
@@ -466,7 +475,7 @@ def _locate(x, xb, lo, hi, ptr):
     return ptr
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pceT, pccT, cx, cy, tau,
             out, fbar, adjoint, pmax):
     h = prc.shape[0]
@@ -485,24 +494,34 @@ def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pceT, pccT, cx
     ag = np.zeros(nint)
     aG = np.zeros(nint + 1)
     aGG = np.zeros(nint + 1)
-    gn = np.empty(n)          # GG of one edge at every node (forward)
-    an = np.empty(n)          # its adjoint
-    mG = np.empty((w + 1, nseg))
-    amG = np.zeros((w + 1, nseg))
+    GN = np.empty((n, w + 1))   # GG of every edge at every node (forward)
+    an = np.empty(n)            # the adjoint at one edge
     ptrs = np.zeros(n, np.int64)
+    mG = np.empty((nseg, w + 1))
+    amG = np.zeros((nseg, w + 1))
+    accv = np.empty(w)
     plen = np.zeros((w + 1, pmax))
-    dplen = np.zeros((w + 1, pmax))  # plen[c + 1] − plen[c] (0 past the last pixel)
+    bounds = np.empty(pmax + 1)
     IXC = np.zeros(w)
     pmr = np.zeros(pmax, np.int64)
     ptr_ = np.zeros(pmax, np.int64)
+    pfirst = np.zeros(w, np.int64)
+    plast = np.zeros(w, np.int64)
+    pa = np.zeros(w, np.int64)
+    pb = np.zeros(w, np.int64)
     n_mask = code.shape[0]
     for r in range(h):
         _row_edges(r, prc, pre, pceT, pccT, cx, cy, X, Y0, Y1, XC)
-        ng = _row_pieces(Y0, Y1, ay, by, H, n_mask, plen, pmr, ptr_)
+        ng = _row_pieces(Y0, Y1, ay, by, H, n_mask, plen, pmr, ptr_, bounds, pfirst, plast)
+        # A piece between centres c and c + 1 takes its y shares from both pixels: only the
+        # gaps either of them meets can weigh (2-4 of a row's 4-6).
         for c in range(w - 1):
             IXC[c] = 1.0 / (XC[c + 1] - XC[c])
-            for p in range(ng):
-                dplen[c, p] = plen[c + 1, p] - plen[c, p]
+            pa[c] = min(pfirst[c], pfirst[c + 1])
+            pb[c] = max(plast[c], plast[c + 1]) + 1
+        if w < 2:
+            pa[0] = 0
+            pb[0] = ng
         xmin = X[0, 0]
         xmax = X[0, w]
         for j in range(n):
@@ -512,13 +531,11 @@ def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pceT, pccT, cx
         hi = min(np.searchsorted(xb, xmax, side="left"), nint - 1)
         if hi < lo:
             continue
-        for j in range(n):
-            ptrs[j] = lo
         if not adjoint:
             # Stage 1: the rows' mean of M f on every piece, then its integrals G and GG.
-            c = 0
             G[lo] = 0.0
             GG[lo] = 0.0
+            c = 0
             for i in range(lo, hi + 1):
                 acc = 0.0
                 mc = mcol[i]
@@ -528,69 +545,79 @@ def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pceT, pccT, cx
                     # (it moves by ~1e-4 px from pixel to pixel).
                     xm = 0.5 * (xb[i] + xb[i + 1])
                     c, t = _bracket(xm, XC, IXC, c)
-                    for p in range(ng):
+                    for p in range(pa[c], pb[c]):
                         mr = pmr[p]
                         tr = ptr_[p]
                         if mr >= 0 and tr >= 0 and code[mr, mc] == view:
-                            acc += (plen[c, p] + t * dplen[c, p]) * f[tr, tc]
+                            a = plen[c, p]
+                            acc += (a + t * (plen[c + 1, p] - a)) * f[tr, tc]
                 g[i] = acc
                 L = xb[i + 1] - xb[i]
                 GG[i + 1] = GG[i] + G[i] * L + 0.5 * acc * L * L
                 G[i + 1] = G[i] + acc * L
-            # Stage 2: every edge's GG at every node, then its mean G over each segment
-            # (edges are shared by neighbouring pixels, nodes by neighbouring segments).
-            for e in range(w + 1):
-                for j in range(n):
-                    k = _locate(X[j, e], xb, lo, hi, ptrs[j])
-                    ptrs[j] = max(k, lo)
-                    gn[j] = _gg(X[j, e], k, xb, g, G, GG, lo, hi)
-                for s in range(nseg):
-                    x0 = X[s, e]
-                    x1 = X[min(s + 1, n - 1), e]
-                    if n > 1 and abs(x1 - x0) > 1e-9:
-                        mG[e, s] = (gn[s + 1] - gn[s]) / (x1 - x0)
-                    else:
-                        xm = 0.5 * (x0 + x1)
-                        mG[e, s] = _g1(xm, _locate(xm, xb, lo, hi, ptrs[s]), xb, g, G, lo, hi)
+            # Stage 2: every edge's GG at every node (one walk along the row per node: an
+            # edge moves on by a piece or two), then its mean G over each segment.  The
+            # divisions are most of this stage's work: kept in plain loops along the row, they
+            # vectorise.
+            for j in range(n):
+                ptr = lo
+                for e in range(w + 1):
+                    k = _locate(X[j, e], xb, lo, hi, ptr)
+                    ptr = max(k, lo)
+                    GN[j, e] = _gg(X[j, e], k, xb, g, G, GG, lo, hi)
+            for s in range(nseg):
+                t1 = min(s + 1, n - 1)
+                for e in range(w + 1):
+                    mG[s, e] = (GN[t1, e] - GN[s, e]) / (X[t1, e] - X[s, e])
+                # Coinciding nodes (a monochromatic band has one): G at the edge itself.
+                ptr = lo
+                for e in range(w + 1):
+                    if n == 1 or not abs(X[t1, e] - X[s, e]) > 1e-9:
+                        xm = 0.5 * (X[s, e] + X[t1, e])
+                        k = _locate(xm, xb, lo, hi, ptr)
+                        ptr = max(k, lo)
+                        mG[s, e] = _g1(xm, k, xb, g, G, lo, hi)
             for c in range(w):
-                acc = 0.0
-                for s in range(nseg):
-                    t1 = min(s + 1, n - 1)
+                accv[c] = 0.0
+            for s in range(nseg):
+                t1 = min(s + 1, n - 1)
+                for c in range(w):
                     wid = 0.5 * ((X[s, c + 1] - X[s, c]) + (X[t1, c + 1] - X[t1, c]))
-                    acc += (mG[c + 1, s] - mG[c, s]) / wid
-                out[r, c] = tau[r, c] * acc / nseg
+                    accv[c] += (mG[s, c + 1] - mG[s, c]) / wid
+            for c in range(w):
+                out[r, c] = tau[r, c] * accv[c] / nseg
         else:
             for i in range(lo, hi + 1):
                 ag[i] = 0.0
             for i in range(lo, hi + 2):
                 aG[i] = 0.0
                 aGG[i] = 0.0
-            for e in range(w + 1):
-                for s in range(nseg):
-                    amG[e, s] = 0.0
-            for c in range(w):
-                eb = out[r, c] * tau[r, c] / nseg
-                if eb == 0.0:
-                    continue
-                for s in range(nseg):
-                    t1 = min(s + 1, n - 1)
+            for s in range(nseg):
+                for e in range(w + 1):
+                    amG[s, e] = 0.0
+            for s in range(nseg):
+                t1 = min(s + 1, n - 1)
+                for c in range(w):
+                    eb = out[r, c] * tau[r, c] / nseg
                     wid = 0.5 * ((X[s, c + 1] - X[s, c]) + (X[t1, c + 1] - X[t1, c]))
-                    amG[c + 1, s] += eb / wid
-                    amG[c, s] -= eb / wid
+                    amG[s, c + 1] += eb / wid
+                    amG[s, c] -= eb / wid
+            for j in range(n):
+                ptrs[j] = lo
             for e in range(w + 1):
                 for j in range(n):
                     an[j] = 0.0
                 for s in range(nseg):
-                    a = amG[e, s]
+                    a = amG[s, e]
                     if a == 0.0:
                         continue
-                    x0 = X[s, e]
-                    x1 = X[min(s + 1, n - 1), e]
-                    if n > 1 and abs(x1 - x0) > 1e-9:
-                        an[s + 1] += a / (x1 - x0)
-                        an[s] -= a / (x1 - x0)
+                    x0s = X[s, e]
+                    x1s = X[min(s + 1, n - 1), e]
+                    if n > 1 and abs(x1s - x0s) > 1e-9:
+                        an[s + 1] += a / (x1s - x0s)
+                        an[s] -= a / (x1s - x0s)
                     else:
-                        xm = 0.5 * (x0 + x1)
+                        xm = 0.5 * (x0s + x1s)
                         _g1_adj(xm, _locate(xm, xb, lo, hi, ptrs[s]), a, xb, ag, aG, lo, hi)
                 for j in range(n):
                     k = _locate(X[j, e], xb, lo, hi, ptrs[j])
@@ -617,14 +644,16 @@ def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pceT, pccT, cx
             for i in range(lo, hi + 1):
                 mc = mcol[i]
                 tc = tcol[i]
-                if ag[i] != 0.0 and mc >= 0 and tc >= 0:
+                ai = ag[i]
+                if ai != 0.0 and mc >= 0 and tc >= 0:
                     xm = 0.5 * (xb[i] + xb[i + 1])
                     c, t = _bracket(xm, XC, IXC, c)
-                    for p in range(ng):
+                    for p in range(pa[c], pb[c]):
                         mr = pmr[p]
                         tr = ptr_[p]
                         if mr >= 0 and tr >= 0 and code[mr, mc] == view:
-                            fbar[tr, tc] += ag[i] * (plen[c, p] + t * dplen[c, p])
+                            a = plen[c, p]
+                            fbar[tr, tc] += ai * (a + t * (plen[c + 1, p] - a))
 
 
 @njit(cache=True, nogil=True, inline="always")

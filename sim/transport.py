@@ -30,6 +30,7 @@ import hashlib
 import json
 import os
 import time
+from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -192,15 +193,32 @@ def each(fn, items):
 def ordered_sum(fn, items, out):
     """``out += fn(item)`` for every item, ``fn`` on a thread per core, the sum always in the
     items' order (so a frame is the same to the last bit whichever thread finishes first, and
-    its noise draw too); one result per thread in flight.  ``fn`` may return None (nothing)."""
+    its noise draw too).  ``fn`` may return None (nothing).
+
+    The next item starts as soon as a thread is free and the sum is taken while the others
+    work (NumPy releases the GIL): a thread never waits for the slowest item of a batch, nor
+    for the sum.  At most one result per thread waits in memory beyond those in flight.
+    """
     items = list(items)
     workers = max(1, min(len(items), os.cpu_count() or 1))
     with ThreadPoolExecutor(workers) as pool:
-        for i in range(0, len(items), workers):
-            for part in pool.map(fn, items[i:i + workers]):
-                if part is not None:
-                    out += part
+        pending = deque()
+        it = iter(items)
+        for item in it:
+            pending.append(pool.submit(fn, item))
+            if len(pending) >= 2 * workers:
+                break
+        while pending:
+            part = pending.popleft().result()
+            nxt = next(it, _DONE)
+            if nxt is not _DONE:
+                pending.append(pool.submit(fn, nxt))
+            if part is not None:
+                out += part
     return out
+
+
+_DONE = object()
 
 
 def _key(design, intervals, seed) -> str:
