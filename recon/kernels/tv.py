@@ -231,6 +231,9 @@ def chambolle(v, p, weight, s, theta, n_iter, isotropic, out, z, masks, a, c0, c
     # In place, rows are updated through one slice (see _out_row).
     inplace = v.ctypes.data == out.ctypes.data
     for l in prange(n_bands):
+        ob, vl = out[l].reshape(-1), v[l].reshape(-1)
+        # With a gradient step the prox input is made in ob and read back from there.
+        vb = ob if gather else vl
         p0, p1 = p[0, l].reshape(-1), p[1, l].reshape(-1)
         p0[(h - 1) * w:] = 0
         for i in range(h):
@@ -238,46 +241,31 @@ def chambolle(v, p, weight, s, theta, n_iter, isotropic, out, z, masks, a, c0, c
         # ybuf[k, i % 2] is row i of iteration k's y.
         ybuf = np.empty((max(n_iter, 1), 2, w + 1), dtype=v.dtype)
         for r in range(h + n_iter):
-            _band_step(v, p, out, l, r, weight, s, theta, n_iter, isotropic, ybuf, gather, z,
-                       masks, a, c0, c1, sub, inplace)
-
-
-@jit(refcount=False)
-def _band_step(v, p, out, l, r, weight, s, theta, n_iter, isotropic, ybuf, gather, z, masks,
-               a, c0, c1, sub, inplace):
-    r"""Step ``r`` of band ``l``'s wavefront (see :func:`chambolle`): the rows of :math:`u`
-    it needs first, then iteration :math:`k` on row :math:`r-k`, then the result's row
-    :math:`r-n+1`."""
-    h, w = v.shape[1], v.shape[2]
-    ob = out[l].reshape(-1)
-    vb = ob if gather else v[l].reshape(-1)
-    p0, p1 = p[0, l].reshape(-1), p[1, l].reshape(-1)
-    if gather:
-        # The first iteration reaches row r at this step and needs rows r and r + 1; with
-        # no iteration the result needs row r.
-        vl = v[l].reshape(-1)
-        if n_iter == 0:
-            if r < h:
-                _input_row(vl, ob, r, w, l, z, masks, a, c0, c1, sub, inplace)
-        else:
-            if r == 0:
-                _input_row(vl, ob, 0, w, l, z, masks, a, c0, c1, sub, inplace)
-            if r + 1 < h:
-                _input_row(vl, ob, r + 1, w, l, z, masks, a, c0, c1, sub, inplace)
-    for k in range(n_iter):
-        q = r - k
-        if q < 0 or q >= h:
-            continue
-        bc, bn = q % 2, (q + 1) % 2
-        if q == 0:
-            _y_first(vb, p0, p1, w, s, theta, ybuf, k, bc)
-        if q + 1 < h:
-            _y_row(vb, p0, p1, (q + 1) * w, w, s, theta, ybuf, k, bn)
-        _dual_row(p0, p1, q * w, w, ybuf, k, bc, bn, isotropic, q == h - 1)
-    # The last iteration has finished row r - n_iter + 1 (and all above it).
-    q = r - n_iter + 1 if n_iter > 0 else r
-    if 0 <= q < h:
-        _out_row(vb, p0, p1, q * w, w, weight, ob, inplace or gather)
+            if gather:
+                # The first iteration reaches row r at this step and needs rows r and r + 1
+                # of the input; with no iteration the result needs row r.
+                if n_iter == 0:
+                    if r < h:
+                        _input_row(vl, ob, r, w, l, z, masks, a, c0, c1, sub, inplace)
+                else:
+                    if r == 0:
+                        _input_row(vl, ob, 0, w, l, z, masks, a, c0, c1, sub, inplace)
+                    if r + 1 < h:
+                        _input_row(vl, ob, r + 1, w, l, z, masks, a, c0, c1, sub, inplace)
+            for k in range(n_iter):
+                q = r - k
+                if q < 0 or q >= h:
+                    continue
+                bc, bn = q % 2, (q + 1) % 2
+                if q == 0:
+                    _y_first(vb, p0, p1, w, s, theta, ybuf, k, bc)
+                if q + 1 < h:
+                    _y_row(vb, p0, p1, (q + 1) * w, w, s, theta, ybuf, k, bn)
+                _dual_row(p0, p1, q * w, w, ybuf, k, bc, bn, isotropic, q == h - 1)
+            # The last iteration has finished row r - n_iter + 1 (and all above it).
+            q = r - n_iter + 1 if n_iter > 0 else r
+            if 0 <= q < h:
+                _out_row(vb, p0, p1, q * w, w, weight, ob, inplace or gather)
 
 
 @jit(refcount=False)
