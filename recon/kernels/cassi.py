@@ -122,6 +122,10 @@ def adjoint(y, masks, a, c0, c1, sub, rowflip, colflip, vid, add, base, scale, o
     n_views = masks.shape[0]
     wm = y.shape[2]
     n_tasks = (h + _ROWS - 1) // _ROWS
+    # With base = out, rows are updated through one slice: LLVM's run-time overlap test fails
+    # on two slices of the same memory and the loop would run unvectorised (measured: 2.5x
+    # slower in place than out of place).
+    inplace = add and base.ctypes.data == out.ctypes.data
     for task in prange(n_tasks):
         z = np.empty((n_views, wm + 1), dtype=out.dtype)
         acc = np.empty(w, dtype=out.dtype)
@@ -138,10 +142,17 @@ def adjoint(y, masks, a, c0, c1, sub, rowflip, colflip, vid, add, base, scale, o
                     # One view: the sum is one term, added to the base as it is gathered.
                     m, al, b, ol = masks[0, i], a[0, l], base[l, i], out[l, i]
                     z0, z1 = z[0, al:al + w], z[0, al + 1:al + 1 + w]
-                    if sub[0, l]:
+                    if sub[0, l] and inplace:
+                        b0, b1 = c0[0, l], c1[0, l]
+                        for j in range(w):
+                            ol[j] += scale * (m[j] * (b0 * z0[j] + b1 * z1[j]))
+                    elif sub[0, l]:
                         b0, b1 = c0[0, l], c1[0, l]
                         for j in range(w):
                             ol[j] = b[j] + scale * (m[j] * (b0 * z0[j] + b1 * z1[j]))
+                    elif inplace:
+                        for j in range(w):
+                            ol[j] += scale * (m[j] * z0[j])
                     else:
                         for j in range(w):
                             ol[j] = b[j] + scale * (m[j] * z0[j])
@@ -165,7 +176,11 @@ def adjoint(y, masks, a, c0, c1, sub, rowflip, colflip, vid, add, base, scale, o
                     else:
                         for j in range(w):
                             o[j] += m[j] * z0[j]
-                if add:
+                if add and inplace:
+                    ol = out[l, i]
+                    for j in range(w):
+                        ol[j] += scale * acc[j]
+                elif add:
                     b, ol = base[l, i], out[l, i]
                     for j in range(w):
                         ol[j] = b[j] + scale * acc[j]

@@ -15,16 +15,24 @@ row :math:`i` of the dual (whose old value that row still needs).  The result,
 Memory traffic is one read of :math:`v`, one read and write of :math:`p` and one write of
 :math:`x`, whatever the number of iterations (the NumPy path makes about 12 passes per
 iteration), and the result equals that of the iterations run one after the other.
+
+**A gradient step in the same pass.**  The solvers' prox input is a gradient step
+:math:`u = v + s H^\top y`.  For CASSI each row of :math:`H^\top y` is a gather of shifted
+measurement rows times a mask row, so the first iteration can make row :math:`i+1` of
+:math:`u` (into ``out``) just before it reads it: one read and one write of the cube for the
+step and the prox together instead of two of each.
 """
 
 from __future__ import annotations
+
+import functools
 
 import numpy as np
 from numba import prange
 
 from recon.kernels import jit
 
-__all__ = ["chambolle", "tv_rows", "combine_tv_rows"]
+__all__ = ["chambolle", "no_gather", "tv_rows", "combine_tv_rows"]
 
 
 # The row loops index slices with the bare loop counter: an index such as ``j - 1`` makes
@@ -99,29 +107,96 @@ def _dual_row(p0, p1, o, w, ybuf, k, bc, bn, isotropic, last):
 
 
 @jit(refcount=False)
-def _out_row(vb, p0, p1, o, w, weight, ob):
-    r"""The row at flat offset ``o`` of :math:`x = v - \lambda\,\mathrm{div}\,p`."""
+def _out_row(vb, p0, p1, o, w, weight, ob, inplace):
+    r"""The row at flat offset ``o`` of :math:`x = v - \lambda\,\mathrm{div}\,p`.
+
+    ``inplace``: ``ob`` is ``vb``.  The row is then updated through one slice: with two
+    slices of the same memory LLVM's run-time overlap test fails and the loop runs
+    unvectorised (measured: the whole prox 20 % slower in place than out of place).
+    """
     if o == 0:
-        ob[0] = vb[0] - weight * (p0[0] + p1[0])
-        v1, a1, c1, c0, o1 = vb[1:w], p0[1:w], p1[1:w], p1[:w - 1], ob[1:w]
-        for j in range(w - 1):
-            o1[j] = v1[j] - weight * (a1[j] + c1[j] - c0[j])
+        o1, a1, c1, c0 = ob[1:w], p0[1:w], p1[1:w], p1[:w - 1]
+        if inplace:
+            ob[0] -= weight * (p0[0] + p1[0])
+            for j in range(w - 1):
+                o1[j] -= weight * (a1[j] + c1[j] - c0[j])
+        else:
+            ob[0] = vb[0] - weight * (p0[0] + p1[0])
+            v1 = vb[1:w]
+            for j in range(w - 1):
+                o1[j] = v1[j] - weight * (a1[j] + c1[j] - c0[j])
         return
-    vr, a, u, orow = vb[o:o + w], p0[o:o + w], p0[o - w:o], ob[o:o + w]
+    a, u, orow = p0[o:o + w], p0[o - w:o], ob[o:o + w]
     c, cm = p1[o:o + w], p1[o - 1:o - 1 + w]
-    for j in range(w):
-        orow[j] = vr[j] - weight * (a[j] - u[j] + c[j] - cm[j])
+    if inplace:
+        for j in range(w):
+            orow[j] -= weight * (a[j] - u[j] + c[j] - cm[j])
+    else:
+        vr = vb[o:o + w]
+        for j in range(w):
+            orow[j] = vr[j] - weight * (a[j] - u[j] + c[j] - cm[j])
+
+
+@jit(refcount=False)
+def _input_row(vb, ob, i, w, l, z, masks, a, c0, c1, sub, inplace):
+    r"""Row ``i`` of the prox input :math:`v + s H^\top y` into ``ob`` (band ``l``, flat;
+    ``inplace``: ``ob`` is ``vb``).
+
+    The gather of :func:`recon.kernels.cassi.adjoint` for one band and row, with the
+    measurement already in plan coordinates and scaled (``z``, see :func:`chambolle`):
+
+    .. math::
+
+        \bigl(s H^\top y\bigr)_{l,i,x} = \sum_k M_{k,i,x}\,\bigl(c^0_{k,l}\, z_{k,i,x+a_{k,l}}
+        + c^1_{k,l}\, z_{k,i,x+a_{k,l}+1}\bigr).
+
+    It is here rather than imported from :mod:`recon.kernels.cassi` because Numba's disk
+    cache of :func:`chambolle` is keyed on this file only: a change there would go unseen.
+    """
+    o = i * w
+    src, dst = vb[o:o + w], ob[o:o + w]
+    for k in range(masks.shape[0]):
+        m, al, zr = masks[k, i], a[k, l], z[k, i]
+        z0, z1 = zr[al:al + w], zr[al + 1:al + 1 + w]
+        # Every view but a first one read from v adds to dst through dst itself (see
+        # _out_row: two slices of one row would not vectorise).
+        if sub[k, l]:
+            b0, b1 = c0[k, l], c1[k, l]
+            if k == 0 and not inplace:
+                for j in range(w):
+                    dst[j] = src[j] + m[j] * (b0 * z0[j] + b1 * z1[j])
+            else:
+                for j in range(w):
+                    dst[j] += m[j] * (b0 * z0[j] + b1 * z1[j])
+        elif k == 0 and not inplace:
+            for j in range(w):
+                dst[j] = src[j] + m[j] * z0[j]
+        else:
+            for j in range(w):
+                dst[j] += m[j] * z0[j]
+
+
+@functools.lru_cache(maxsize=None)
+def no_gather(dtype) -> tuple:
+    """The ``z, masks, a, c0, c1, sub`` arguments of :func:`chambolle` for a plain prox (no
+    views, so no gradient step); the arrays are empty and never written."""
+    dtype = np.dtype(dtype)
+    return (np.zeros((0, 1, 1), dtype), np.zeros((0, 1, 1), dtype),
+            np.zeros((0, 1), np.int64), np.zeros((0, 1), dtype), np.zeros((0, 1), dtype),
+            np.zeros((0, 1), np.bool_))
 
 
 @jit(parallel=True)
-def chambolle(v, p, weight, s, theta, n_iter, isotropic, out):
+def chambolle(v, p, weight, s, theta, n_iter, isotropic, out, z, masks, a, c0, c1, sub):
     r"""``n_iter`` Chambolle dual iterations on every band, then
-    :math:`x = v-\lambda\,\mathrm{div}\,p`.
+    :math:`x = u-\lambda\,\mathrm{div}\,p`, where the prox input :math:`u` is :math:`v` or,
+    fused with a CASSI gradient step, :math:`u = v + s H^\top y`.
 
     Parameters
     ----------
     v : ndarray, shape (L, H, W)
-        The prox input (float32; every argument in that precision), C-contiguous.
+        The prox input, or the base of the gradient step (float32; every argument in that
+        precision), C-contiguous.
     p : ndarray, shape (2, L, H, W)
         The dual, updated in place; its entries past the Neumann boundary (last row of
         :math:`p^0`, last column of :math:`p^1`) are set to zero first.
@@ -135,12 +210,30 @@ def chambolle(v, p, weight, s, theta, n_iter, isotropic, out):
     out : ndarray, shape (L, H, W)
         The result; may be ``v`` itself (each row of ``v`` is read for the last time before
         that row of ``out`` is written).
+    z : ndarray, shape (K, H, Wm + 1)
+        The gradient step's :math:`s\,y` in the CASSI plan coordinates of
+        :mod:`recon.kernels.cassi` (each view's measurement flipped as its plan, scaled, one
+        zero column appended), from
+        :meth:`CassiOperator.adjoint_gather <recon.operators.cassi.CassiOperator.adjoint_gather>`.
+        With ``K = 0`` there is no gradient step: :math:`u = v`.
+    masks, a, c0, c1, sub : ndarray
+        The plan's masks (K, H, W), integer offsets (K, L), tap weights (K, L) and sub-pixel
+        flags (K, L), as for :func:`recon.kernels.cassi.adjoint`.
 
-    Bands are independent and run in parallel.
+    Bands are independent and run in parallel.  With a gradient step, row :math:`i` of
+    :math:`u` is gathered into ``out`` just before the first dual iteration reaches it and
+    is read back from there, while in cache: the cube is read and written once for the step
+    and the prox together, where :func:`recon.kernels.cassi.adjoint` then this kernel would
+    read it twice and write it twice.
     """
     n_bands, h, w = v.shape
+    gather = masks.shape[0] > 0
+    # In place, rows are updated through one slice (see _out_row).
+    inplace = v.ctypes.data == out.ctypes.data
     for l in prange(n_bands):
-        vb, ob = v[l].reshape(-1), out[l].reshape(-1)
+        ob, vl = out[l].reshape(-1), v[l].reshape(-1)
+        # With a gradient step the prox input is made in ob and read back from there.
+        vb = ob if gather else vl
         p0, p1 = p[0, l].reshape(-1), p[1, l].reshape(-1)
         p0[(h - 1) * w:] = 0
         for i in range(h):
@@ -148,6 +241,17 @@ def chambolle(v, p, weight, s, theta, n_iter, isotropic, out):
         # ybuf[k, i % 2] is row i of iteration k's y.
         ybuf = np.empty((max(n_iter, 1), 2, w + 1), dtype=v.dtype)
         for r in range(h + n_iter):
+            if gather:
+                # The first iteration reaches row r at this step and needs rows r and r + 1
+                # of the input; with no iteration the result needs row r.
+                if n_iter == 0:
+                    if r < h:
+                        _input_row(vl, ob, r, w, l, z, masks, a, c0, c1, sub, inplace)
+                else:
+                    if r == 0:
+                        _input_row(vl, ob, 0, w, l, z, masks, a, c0, c1, sub, inplace)
+                    if r + 1 < h:
+                        _input_row(vl, ob, r + 1, w, l, z, masks, a, c0, c1, sub, inplace)
             for k in range(n_iter):
                 q = r - k
                 if q < 0 or q >= h:
@@ -161,7 +265,7 @@ def chambolle(v, p, weight, s, theta, n_iter, isotropic, out):
             # The last iteration has finished row r - n_iter + 1 (and all above it).
             q = r - n_iter + 1 if n_iter > 0 else r
             if 0 <= q < h:
-                _out_row(vb, p0, p1, q * w, w, weight, ob)
+                _out_row(vb, p0, p1, q * w, w, weight, ob, inplace or gather)
 
 
 @jit(refcount=False)

@@ -279,6 +279,50 @@ class CassiOperator(LinearOperator):
                            dt.type(scale), out)
         return out
 
+    def adjoint_gather(self, y, scale=1.0, dtype=np.float32, max_bytes=None):
+        r""":math:`s H^\top y` as the per-row gather that a fused kernel adds to a cube as it
+        goes (:func:`recon.kernels.tv.chambolle`), or None.
+
+        Returns ``(z, masks, a, c0, c1, sub)``: the plan arrays of :mod:`recon.kernels.cassi`
+        (masks, integer offsets, tap weights, sub-pixel flags) and ``z``, shape
+        ``(K, Hv, Wm + 1)``, :math:`s\,y` in plan coordinates (each view's measurement flipped
+        as its plan, one zero column appended), such that
+
+        .. math::
+
+            \bigl(s H^\top y\bigr)_{l,i,x} = \sum_k M_{k,i,x}\bigl(c^0_{k,l}\,
+            z_{k,i,x+a_{k,l}} + c^1_{k,l}\, z_{k,i,x+a_{k,l}+1}\bigr).
+
+        None when a view has a resampling warp, when the kernels do not run for ``dtype``
+        (float64, or switched off), or when ``masks`` and ``z`` together would take more
+        than ``max_bytes``: callers then use :meth:`adjoint_add`.  The flips are made here
+        once per call, on the measurement, so that the kernel can run bands in parallel and
+        still gather each row contiguously.
+        """
+        kp = self._kernel_plan
+        dt = np.dtype(dtype)
+        if kp.views.size != self.n_views or not kernels.usable(np.empty(0, dt)):
+            return None
+        n_views, hv, wm = self.oshape
+        size = n_views * hv * (self.views[0].mask.shape[1] + wm + 1) * dt.itemsize
+        if max_bytes is not None and size > max_bytes:
+            return None
+        y = np.asarray(y)
+        if y.shape != self.oshape:
+            raise ValueError(f"{type(self).__name__}: input shape {y.shape} != {self.oshape}")
+        masks, a, c0, c1, sub, rowflip, colflip, vid = kp.arrays(dt)
+        wm = self.oshape[2]
+        z = np.empty((vid.size, self.oshape[1], wm + 1), dtype=dt)
+        for k, view in enumerate(vid):
+            src = y[view]
+            if rowflip[k]:
+                src = src[::-1]
+            if colflip[k]:
+                src = src[:, ::-1]
+            np.multiply(src, dt.type(scale), out=z[k, :, :wm])
+        z[:, :, wm] = 0
+        return z, masks, a, c0, c1, sub
+
     def _adjoint_permutations(self, y):
         """The NumPy reference of :func:`recon.kernels.cassi.adjoint`: the permutation
         views' part of the adjoint (zeros without such views)."""

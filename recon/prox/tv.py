@@ -49,6 +49,7 @@ The isotropic iteration is the one of :func:`skimage.restoration.denoise_tv_cham
 
 from __future__ import annotations
 
+import math
 import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
@@ -263,6 +264,15 @@ def parallel_spans(fn, n: int, threads: int | None = None, min_span: int = 1 << 
 _CHUNK_BYTES = 1 << 19
 
 
+# The fused gradient step (TVProx.gradient_prox) reads the masks and the measurement once per
+# band: it pays while they stay in a core's L2 cache (2 MiB here) beside the band's rows, and
+# loses where they do not.  Measured (two threads, 2 Chambolle iterations, in place): one
+# view 256x256x28 (0.6 MB) 0.11 s against 0.12 s for 50 GAP-TV iterations; one view
+# 645x501x25 (2.7 MB) 22.7 ms against 23.1 ms per step, even; 3 and 5 views 256x256x28
+# (1.7, 2.9 MB) 7.2 ms against 6.7 and 6.3 ms; 5 views 645x501x25 (13 MB) 24 ms against 18.
+_GATHER_BYTES = 1 << 20
+
+
 class TVProx:
     r"""Proximal map of :math:`\lambda\,\mathrm{TV}` with a persistent (warm-startable) dual.
 
@@ -343,12 +353,7 @@ class TVProx:
         v = np.asarray(v)
         if v.shape != self.shape:
             raise InputError(f"TVProx: input shape {v.shape} != {self.shape}")
-        weight = float(weight)
-        if not np.isfinite(weight) or weight < 0:
-            raise InputError(f"TV weight must be finite and >= 0, got {weight}")
-        n_iter = int(n_iter)
-        if n_iter < 0:
-            raise InputError(f"n_iter must be >= 0, got {n_iter}")
+        weight, n_iter = self._check(weight, n_iter)
         if out is None:
             out = np.empty(self.shape, dtype=self.dtype)
         if weight == 0.0:
@@ -362,10 +367,8 @@ class TVProx:
                 and self.dual.flags.c_contiguous:
             from recon.kernels import tv as ktv
 
-            t = self.dtype.type
-            with kernels.threads(self.threads):
-                ktv.chambolle(np.ascontiguousarray(v), self.dual, t(weight), t(_STEP / weight),
-                              t(_STEP), n_iter, self.isotropic, out)
+            self._kernel(np.ascontiguousarray(v), weight, n_iter, out,
+                         ktv.no_gather(self.dtype))
             return out
         if self._work is None:
             shape = self.shape
@@ -380,6 +383,80 @@ class TVProx:
             for job in jobs:
                 job.result()
         return out
+
+    def gradient_prox(self, op, y: np.ndarray, base: np.ndarray, weight: float,
+                      n_iter: int = 10, warm: bool = True, scale: float = 1.0,
+                      out: np.ndarray | None = None) -> np.ndarray:
+        r"""A solver's gradient step and this prox in one:
+        :math:`\mathrm{prox}_{\lambda\mathrm{TV}}\bigl(b + s\,H^\top y\bigr)`.
+
+        Parameters
+        ----------
+        op : LinearOperator
+            :math:`H`, with ``ishape`` the shape of this prox.
+        y : ndarray, shape ``op.oshape``
+        base : ndarray, shape (L, H, W)
+            :math:`b`; read only (unless it is ``out``).
+        weight, n_iter, warm
+            As for :meth:`__call__`.
+        scale : float
+            :math:`s`.
+        out : ndarray, shape (L, H, W), optional
+            Where to write the result; may be ``base`` itself.
+
+        Returns
+        -------
+        ndarray, shape (L, H, W)
+
+        Notes
+        -----
+        Where the operator offers the rows of its adjoint as a gather
+        (:meth:`CassiOperator.adjoint_gather <recon.operators.cassi.CassiOperator.adjoint_gather>`:
+        CASSI operators whose views are all permutations), small enough to stay in cache
+        while every band reads it (``_GATHER_BYTES``), and the kernels run (float32), the
+        step is made row by row inside the Chambolle pass (:func:`recon.kernels.tv.chambolle`):
+        one read and one write of the cube fewer than the two calls.  Otherwise, and as the
+        reference the fused pass is tested against, it is ``op.adjoint_add(y, base, scale,
+        out)`` followed by ``self(out, weight, n_iter, warm, out)``.
+        """
+        base = np.asarray(base)
+        if base.shape != self.shape:
+            raise InputError(f"TVProx: input shape {base.shape} != {self.shape}")
+        weight, n_iter = self._check(weight, n_iter)
+        gather = getattr(op, "adjoint_gather", None)
+        if out is None:
+            out = np.empty(self.shape, dtype=self.dtype)
+        fused = (gather is not None and weight > 0.0 and tuple(op.ishape) == self.shape
+                 and kernels.usable(base, out, self.dual) and base.flags.c_contiguous
+                 and out.flags.c_contiguous and self.dual.flags.c_contiguous)
+        args = gather(y, scale, self.dtype, max_bytes=_GATHER_BYTES) if fused else None
+        if args is None:
+            op.adjoint_add(y, base, scale, out=out)
+            return self(out, weight, n_iter, warm, out=out)
+        if not warm:
+            self.reset()
+        self._kernel(base, weight, n_iter, out, args)
+        return out
+
+    @staticmethod
+    def _check(weight, n_iter) -> tuple[float, int]:
+        weight = float(weight)
+        if not math.isfinite(weight) or weight < 0:
+            raise InputError(f"TV weight must be finite and >= 0, got {weight}")
+        n_iter = int(n_iter)
+        if n_iter < 0:
+            raise InputError(f"n_iter must be >= 0, got {n_iter}")
+        return weight, n_iter
+
+    def _kernel(self, v, weight, n_iter, out, gather) -> None:
+        """The fused Chambolle pass (:func:`recon.kernels.tv.chambolle`); ``gather`` is its
+        ``z, masks, a, c0, c1, sub`` (no views: a plain prox)."""
+        from recon.kernels import tv as ktv
+
+        t = self.dtype.type
+        with kernels.threads(self.threads):
+            ktv.chambolle(v, self.dual, t(weight), t(_STEP / weight), t(_STEP), n_iter,
+                          self.isotropic, out, *gather)
 
     def _run(self, sl: slice, v, weight, n_iter, out) -> None:
         """All dual iterations for the bands ``sl`` (bands are independent)."""

@@ -17,6 +17,9 @@ compressive sensing", ICIP 2016.  With :math:`\Phi = \mathrm{diag}(HH^\top)` (th
 Speed: the TV step is a Chambolle dual projection whose dual is carried over from one outer
 iteration to the next, so 1-2 inner iterations replace the 5 cold ones of the public code.
 :math:`Hf_k` is computed once per iteration and reused by the next one (and by the objective).
+The :math:`\theta` step and the TV step are one pass over the cube where the operator allows
+(:meth:`TVProx.gradient_prox <recon.prox.TVProx.gradient_prox>`: single-view CASSI and other
+small permutation-view CASSI operators), else ``adjoint_add`` then the prox.
 """
 
 from __future__ import annotations
@@ -151,8 +154,9 @@ def gap_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float = 0
         else:
             np.subtract(g, hf, out=r)
         r *= phi_inv
-        op.adjoint_add(r, f, out=f)
-        prox(f, tau, tv_iters, warm=warm_dual, out=f)
+        # The projection and the TV step, fused into one pass over the cube where the
+        # operator allows (TVProx.gradient_prox).
+        prox.gradient_prox(op, r, f, tau, tv_iters, warm=warm_dual, out=f)
         hf = op.forward(f).astype(dtype, copy=False)
         obj = None
         if objective:
