@@ -8,7 +8,9 @@ runs :mod:`recon.calibration` on them, as a lab would with its targets:
    where each band's light lands on average over the band-pass filter's interval;
 3. **masks** — each view's per-band mask image from the whites (Richardson–Lucy against the
    Airy blur where it spans a pixel), chrome below :data:`MASK_FLOOR` set to zero;
-4. **geometry** — homographies to the centre view from the checkerboard at 550 nm;
+4. **geometry** — homographies to the centre view from the checkerboard at 550 nm, and each
+   view's *lead*: how many columns before its offsets its light begins, where the shifted
+   model starts its image (:mod:`recon.calibration.extent`);
 5. the steps of the other calibrated models asked for (:data:`STEPS`: the smeared model's view
    masks, the footprint model's comb captures);
 6. **radiometry** — per model, the per-band gains :math:`c_l` (radiance per DN/s).  By
