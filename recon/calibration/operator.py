@@ -7,8 +7,8 @@ r"""From a calibration to the forward operator and to the per-view measurements 
 :math:`C` the calibrated mask images, :math:`o` the normalised offsets (absolute columns in the
 view's box) and :math:`W_k` the homography warp (the identity for the centre view), each view's
 image started ``view_leads`` columns before its offsets where the calibration holds them
-(:mod:`recon.calibration.extent`) — the "shifted-mask" model — or, when the calibration holds it, the "mask, then shift and smear"
-model :class:`recon.operators.smeared.SmearedCassi`
+(:mod:`recon.calibration.extent`) — the "shifted-mask" model — or, when the calibration holds
+it, the "mask, then shift and smear" model :class:`recon.operators.smeared.SmearedCassi`
 
 .. math:: g_k = \sum_l D_{k,l}\big(M_k \odot W_k f_l\big),
 
