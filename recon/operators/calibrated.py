@@ -13,9 +13,9 @@ where :math:`S_{k,l}` places the view image (width :math:`W_v`) at its measured 
 offset :math:`\varphi_{k,l}` on the sensor crop (linear interpolation for sub-pixel offsets).
 Unlike :class:`~recon.operators.cassi.CassiOperator`, the offsets here are *absolute* column
 positions on the crop of width :math:`W_m` the mask images were cut to, not normalised.  A
-band's image may reach past either edge of the crop (a view image that starts before the
-band's measured light, :func:`recon.calibration.extent.extend_views`): the columns that land
-outside are not measured, so :math:`S_{k,l}` keeps only the rows of the crop.
+band's image may reach past either edge of the crop (a view image started before its offsets
+where the view's light begins, :mod:`recon.calibration.extent`): the columns that land outside
+are not measured, so :math:`S_{k,l}` keeps only the rows of the crop.
 
 A per-band scale :math:`s_l` (``band_scale``, e.g. the inverse radiometric gains) multiplies
 :math:`C_{k,l}`; it is folded into the interpolation weights, so the mask images are never
