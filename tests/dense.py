@@ -28,3 +28,16 @@ def flip_matrix(shape, axes) -> np.ndarray:
     if 1 in axes:
         idx = idx[:, ::-1]
     return np.eye(h * w)[idx.ravel()]
+
+
+def assert_matches_dense(op, a: np.ndarray, rng, norms_atol: float = 1e-9) -> None:
+    """``op`` (float64 path) against its dense matrix ``a``: forward, adjoint and the diagonal
+    of :math:`AA^\\top`, each on random inputs, then the dot test of its adjoint."""
+    from recon.operators import dot_test
+
+    x = rng.standard_normal(op.ishape)
+    y = rng.standard_normal(op.oshape)
+    np.testing.assert_allclose(op.forward(x).ravel(), a @ x.ravel(), atol=1e-9)
+    np.testing.assert_allclose(op.adjoint(y).ravel(), a.T @ y.ravel(), atol=1e-9)
+    np.testing.assert_allclose(op.row_norms_sq().ravel(), np.diag(a @ a.T), atol=norms_atol)
+    assert dot_test(op, rng) < 1e-6

@@ -29,3 +29,32 @@ def assert_operator_matches_numpy(op, seed: int) -> None:
     assert fwd.shape == op.oshape and adj.shape == op.ishape
     assert rel(fwd, fwd_ref) < RTOL32
     assert rel(adj, adj_ref) < RTOL32
+
+
+def permutation_cassi(rng) -> dict:
+    """CASSI operators whose views are all permutations (the fused kernels' plans), small and
+    odd-sized: integer and negative sub-pixel shifts, 9 and 5 views, per-view offsets, one
+    band, one row, one column."""
+    from recon.operators import kaleidoscope_cassi, standard_cassi
+
+    return {
+        "standard-int": standard_cassi((rng.random((13, 17)) > 0.5).astype(np.float32), 2, 5),
+        "standard-neg-sub": standard_cassi(rng.random((13, 17)).astype(np.float32), -1.3, 5),
+        "kaleido9-sub": kaleidoscope_cassi(rng.random((9, 11, 14)).astype(np.float32),
+                                           0.9 * np.arange(6), 9),
+        "kaleido5-no-inversion": kaleidoscope_cassi(rng.random((9, 11, 14)), 2.0 * np.arange(6),
+                                                    5, inversion=False),
+        "per-view-offsets": kaleidoscope_cassi(rng.random((3, 8, 10)),
+                                               rng.uniform(-3, 3, (3, 4)), 3),
+        "one-band": standard_cassi(rng.random((6, 7)), 1.5, 1),
+        "one-row": standard_cassi(rng.random((1, 9)), 1.0, 3),
+        "one-column": kaleidoscope_cassi(rng.random((3, 6, 1)), 0.5 * np.arange(3), 3),
+    }
+
+
+def warped_cassi(rng):
+    """A two-view CASSI operator whose second view resamples (a sub-pixel translation)."""
+    from recon.operators import CassiOperator, Translate, View
+
+    return CassiOperator([View(rng.random((11, 14)), 0.7 * np.arange(4)),
+                          View(rng.random((11, 14)), 0.5 * np.arange(4), Translate(0.3, 1.2))])

@@ -39,7 +39,7 @@ import numpy as np
 
 from recon.errors import InputError
 
-__all__ = ["measure_leads", "lead_columns", "with_leads"]
+__all__ = ["measure_leads", "lead_columns", "with_leads", "led_view"]
 
 
 def measure_leads(mask_images, offsets, level: float = 0.1) -> np.ndarray:

@@ -311,8 +311,7 @@ class CassiOperator(LinearOperator):
         if y.shape != self.oshape:
             raise ValueError(f"{type(self).__name__}: input shape {y.shape} != {self.oshape}")
         masks, a, c0, c1, sub, rowflip, colflip, vid = kp.arrays(dt)
-        wm = self.oshape[2]
-        z = np.empty((vid.size, self.oshape[1], wm + 1), dtype=dt)
+        z = np.empty((vid.size, hv, wm + 1), dtype=dt)
         for k, view in enumerate(vid):
             src = y[view]
             if rowflip[k]:

@@ -109,15 +109,19 @@ def _reference(f, code, view, relay, part, geom, tau, r):
     return out
 
 
-@pytest.mark.mitsuba
-def test_kernel_matches_a_direct_sum_over_its_pieces(shared_cache, monkeypatch):
+@pytest.fixture
+def small_transport(shared_cache):
+    """The `small` design's transport (seed 0), traced once into the shared test cache."""
     pytest.importorskip("mitsuba")
     from sim.design import get_design
     from sim.transport import load_or_build
 
-    monkeypatch.setenv("KALEIDOSPEC_CACHE", str(shared_cache))
-    d = get_design("small")
-    tr = load_or_build(d, seed=0)
+    return load_or_build(get_design("small"), seed=0)
+
+
+@pytest.mark.mitsuba
+def test_kernel_matches_a_direct_sum_over_its_pieces(small_transport):
+    tr = small_transport
     rng = np.random.default_rng(1)
     for shape, k, l in (((158, 158), 0, 1), ((316, 301), 1, 5), ((97, 211), 3, 10)):
         f = rng.random(shape).astype(np.float32)
@@ -179,16 +183,10 @@ def _plain_rows(f, code, view, relay, part, geom, tau):
 
 
 @pytest.mark.mitsuba
-def test_kernel_matches_its_algorithm_written_plainly(shared_cache, monkeypatch):
+def test_kernel_matches_its_algorithm_written_plainly(small_transport):
     """The kernel's walks, gap ranges and running integrals against binary searches and
     cumulative sums: the same numbers to float32 rounding, forward and (dot test) adjoint."""
-    pytest.importorskip("mitsuba")
-    from sim.design import get_design
-    from sim.transport import load_or_build
-
-    monkeypatch.setenv("KALEIDOSPEC_CACHE", str(shared_cache))
-    d = get_design("small")
-    tr = load_or_build(d, seed=0)
+    tr = small_transport
     rng = np.random.default_rng(2)
     for shape, k, l in (((158, 158), 0, 0), ((316, 316), 2, 6), ((120, 260), 4, 10)):
         f = rng.random(shape).astype(np.float32)

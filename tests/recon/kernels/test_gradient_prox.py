@@ -5,36 +5,17 @@ gather of :func:`recon.kernels.tv.chambolle`) against the NumPy path it replaces
 import numpy as np
 import pytest
 
-from kernel_checks import RTOL32, rel
+from kernel_checks import RTOL32, permutation_cassi, rel, warped_cassi
 from recon import kernels
-from recon.operators import CassiOperator, Translate, View, kaleidoscope_cassi, standard_cassi
+from recon.operators import CassiOperator
 from recon.prox import TVProx
 from recon.solvers import gap_tv
 
 pytestmark = pytest.mark.skipif(not kernels.enabled(), reason="Numba kernels switched off")
 
 
-def _operators():
-    rng = np.random.default_rng(21)
-    return {
-        "standard-int": standard_cassi((rng.random((13, 17)) > 0.5).astype(np.float32), 2, 5),
-        "standard-neg-sub": standard_cassi(rng.random((13, 17)).astype(np.float32), -1.3, 5),
-        "kaleido9-sub": kaleidoscope_cassi(rng.random((9, 11, 14)).astype(np.float32),
-                                           0.9 * np.arange(6), 9),
-        "kaleido5-no-inversion": kaleidoscope_cassi(rng.random((9, 11, 14)), 2.0 * np.arange(6),
-                                                    5, inversion=False),
-        "per-view-offsets": kaleidoscope_cassi(rng.random((3, 8, 10)),
-                                               rng.uniform(-3, 3, (3, 4)), 3),
-        "one-band": standard_cassi(rng.random((6, 7)), 1.5, 1),
-        "one-row": standard_cassi(rng.random((1, 9)), 1.0, 3),
-        "one-column": kaleidoscope_cassi(rng.random((3, 6, 1)), 0.5 * np.arange(3), 3),
-    }
-
-
-OPS = _operators()
-WARPED = CassiOperator([View(np.random.default_rng(22).random((11, 14)), 0.7 * np.arange(4)),
-                        View(np.random.default_rng(23).random((11, 14)), 0.5 * np.arange(4),
-                             Translate(0.3, 1.2))])
+OPS = permutation_cassi(np.random.default_rng(21))
+WARPED = warped_cassi(np.random.default_rng(22))
 
 
 def _problem(op, seed):

@@ -10,11 +10,10 @@ with single rows and columns, so that every edge branch runs.
 import numpy as np
 import pytest
 
-from kernel_checks import RTOL32, assert_operator_matches_numpy, rel
+from kernel_checks import (RTOL32, assert_operator_matches_numpy, permutation_cassi, rel,
+                           warped_cassi)
 from recon import kernels
-from recon.operators import (
-    CassiOperator, Translate, View, dot_test, kaleidoscope_cassi, standard_cassi,
-)
+from recon.operators import dot_test
 from recon.prox import TVProx, tv_norm_per_band
 from recon.solvers import solve
 from recon.solvers.fista_tv import _extrapolate, _restart_dot
@@ -109,26 +108,8 @@ def test_tv_norm_matches_numpy(shape, isotropic):
 # -- CASSI operators -------------------------------------------------------------------------
 
 
-def _operators():
-    rng = np.random.default_rng(5)
-    return {
-        "standard-int": standard_cassi((rng.random((13, 17)) > 0.5).astype(np.float32), 2, 5),
-        "standard-neg-sub": standard_cassi(rng.random((13, 17)).astype(np.float32), -1.3, 5),
-        "kaleido9-sub": kaleidoscope_cassi(rng.random((9, 11, 14)).astype(np.float32),
-                                           0.9 * np.arange(6), 9),
-        "kaleido5-no-inversion": kaleidoscope_cassi(rng.random((9, 11, 14)), 2.0 * np.arange(6),
-                                                    5, inversion=False),
-        "per-view-offsets": kaleidoscope_cassi(rng.random((3, 8, 10)),
-                                               rng.uniform(-3, 3, (3, 4)), 3),
-        "one-band": standard_cassi(rng.random((6, 7)), 1.5, 1),
-        "one-column": kaleidoscope_cassi(rng.random((3, 6, 1)), 0.5 * np.arange(3), 3),
-        "with-warped-view": CassiOperator([
-            View(rng.random((11, 14)), 0.7 * np.arange(4)),
-            View(rng.random((11, 14)), 0.5 * np.arange(4), Translate(0.3, 1.2))]),
-    }
-
-
-OPS = _operators()
+_RNG = np.random.default_rng(5)
+OPS = {**permutation_cassi(_RNG), "with-warped-view": warped_cassi(_RNG)}
 
 
 @pytest.mark.parametrize("name", sorted(OPS))

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from dense import flip_matrix, shift_matrix
+from dense import assert_matches_dense, flip_matrix, shift_matrix
 from recon.errors import InputError
 from recon.operators import (
     CalibratedCassi, Flip, Translate, dot_test, kaleidoscope_cassi,
@@ -41,12 +41,7 @@ def test_matches_dense_reference(k, l_, h, w, extra, data, seed):
     op = CalibratedCassi(cm, offsets, warps, (l_, h, w))
     a = dense_calibrated(cm, offsets, mats, (l_, h, w))
     assert op.ishape == (l_, h, w) and op.oshape == (k, h, wm)
-    x = rng.standard_normal(op.ishape)
-    y = rng.standard_normal(op.oshape)
-    np.testing.assert_allclose(op.forward(x).ravel(), a @ x.ravel(), atol=1e-9)
-    np.testing.assert_allclose(op.adjoint(y).ravel(), a.T @ y.ravel(), atol=1e-9)
-    np.testing.assert_allclose(op.row_norms_sq().ravel(), np.diag(a @ a.T), atol=1e-9)
-    assert dot_test(op, rng) < 1e-6
+    assert_matches_dense(op, a, rng)
 
 
 @SETTINGS
@@ -64,12 +59,7 @@ def test_bands_past_the_crop_edges(k, l_, h, w, wm, data, seed):
                          (l_, h, w))
     a = dense_calibrated(cm, offsets, [np.eye(h * w) if a is None else flip_matrix((h, w), a)
                                        for a in kinds], (l_, h, w))
-    x = rng.standard_normal(op.ishape)
-    y = rng.standard_normal(op.oshape)
-    np.testing.assert_allclose(op.forward(x).ravel(), a @ x.ravel(), atol=1e-9)
-    np.testing.assert_allclose(op.adjoint(y).ravel(), a.T @ y.ravel(), atol=1e-9)
-    np.testing.assert_allclose(op.row_norms_sq().ravel(), np.diag(a @ a.T), atol=1e-9)
-    assert dot_test(op, rng) < 1e-6
+    assert_matches_dense(op, a, rng)
 
 
 def test_translate_warp_dot_and_row_norms():

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from dense import flip_matrix, shift_matrix
+from dense import assert_matches_dense, flip_matrix, shift_matrix
 from recon.errors import InputError
 from recon.operators import (
     CassiOperator, Flip, HomographyWarp, Identity, Translate, View, dot_test,
@@ -106,12 +106,7 @@ def test_homography_view_matches_dense(seed, l_, hv, wv, offs):
     assert op.ishape == (l_, h, w)
     mats = [hw.matrix().toarray()] * 2
     a, _ = dense_cassi(masks, offsets, mats, (l_, h, w))
-    x = rng.standard_normal(op.ishape)
-    y = rng.standard_normal(op.oshape)
-    np.testing.assert_allclose(op.forward(x).ravel(), a @ x.ravel(), atol=1e-9)
-    np.testing.assert_allclose(op.adjoint(y).ravel(), a.T @ y.ravel(), atol=1e-9)
-    np.testing.assert_allclose(op.row_norms_sq().ravel(), np.diag(a @ a.T), atol=1e-6)
-    assert dot_test(op, rng) < 1e-6
+    assert_matches_dense(op, a, rng, norms_atol=1e-6)
 
 
 # -- the standard single-view convention (MST / TSA-Net) -----------------------------------

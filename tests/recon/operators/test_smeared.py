@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from dense import flip_matrix
+from dense import assert_matches_dense, flip_matrix
 from recon.errors import InputError
 from recon.operators import (
     CalibratedCassi, Flip, SmearedCassi, Translate, dot_test, kaleidoscope_cassi,
@@ -43,12 +43,7 @@ def test_matches_dense_reference(k, l_, h, w, n_taps, data, seed):
     op = SmearedCassi(masks, start, weights, warps, (l_, h, w), width=wm)
     a = dense_smeared(masks, start, weights, mats, wm)
     assert op.ishape == (l_, h, w) and op.oshape == (k, h, wm)
-    x = rng.standard_normal(op.ishape)
-    y = rng.standard_normal(op.oshape)
-    np.testing.assert_allclose(op.forward(x).ravel(), a @ x.ravel(), atol=1e-9)
-    np.testing.assert_allclose(op.adjoint(y).ravel(), a.T @ y.ravel(), atol=1e-9)
-    np.testing.assert_allclose(op.row_norms_sq().ravel(), np.diag(a @ a.T), atol=1e-9)
-    assert dot_test(op, rng) < 1e-6
+    assert_matches_dense(op, a, rng)
 
 
 @pytest.mark.parametrize("warp", [Translate(0.4, -0.7),
