@@ -8,9 +8,11 @@ runs :mod:`recon.calibration` on them, as a lab would with its targets:
    where each band's light lands on average over the band-pass filter's interval;
 3. **masks** — each view's per-band mask image from the whites (Richardson–Lucy against the
    Airy blur where it spans a pixel), chrome below :data:`MASK_FLOOR` set to zero;
-4. **geometry** — homographies to the centre view from the checkerboard at 550 nm, and each
-   view's *lead*: how many columns before its offsets its light begins, where the shifted
-   model starts its image (:mod:`recon.calibration.extent`);
+4. **geometry** — homographies to the centre view from the checkerboard at 550 nm, what they
+   miss of each view (a smooth displacement field, :func:`recon.calibration.board_field`: the
+   prism bends a view's image along x), and each view's *lead*: how many columns before its
+   offsets its light begins, where the shifted model starts its image
+   (:mod:`recon.calibration.extent`);
 5. the steps of the other calibrated models asked for (:data:`STEPS`: the smeared model's view
    masks, the footprint model's comb captures);
 6. **radiometry** — per model, the per-band gains :math:`c_l` (radiance per DN/s).  By
@@ -242,7 +244,8 @@ def calibrate_from_captures(design, *, models=None, repeats: int = 4, progress: 
         bar.update()
         # The board's layout is what a lab knows from its target: read it from the sidecar.
         pattern = tuple(caps.meta["checker"]["pattern_size"])
-        hb = view_homographies(caps.checker, caps.checker_white, boxes, ids, pattern)
+        hb, fields = view_homographies(caps.checker, caps.checker_white, boxes, ids, pattern,
+                                       return_fields=True)
         bar.update()
         # Provisional gains from the whites (radiance E = 1 per band): the mask images are the
         # white captures divided by their white level w_l (DN at an open pixel), taken with
@@ -259,7 +262,7 @@ def calibrate_from_captures(design, *, models=None, repeats: int = 4, progress: 
             view_ids=ids, view_boxes=boxes, box_homographies=hb, mask_images=masks,
             wavelengths=wl, dispersion=band_mean_positions(fit, intervals, SMEAR_SAMPLES),
             checker_dispersion=fit.positions([CHECKER_NM])[:, 0], phase=True,
-            gains=gains0, design_hash=design.hash, captures=caps.names(),
+            gains=gains0, design_hash=design.hash, captures=caps.names(), box_fields=fields,
             band_positions=(band_positions(fit, intervals, SMEAR_SAMPLES)
                             if "smeared" in extra else None))
         # Views whose light begins before their offsets (recon.calibration.extent: on `paper`

@@ -93,7 +93,7 @@ def scene_cube(scene, design, **scene_params):
 
 
 def render_scene(scene, design, *, seed: int = 0, noise: bool = True, angle_deg=None,
-                 radiance_scale=None, **scene_params):
+                 radiance_scale=None, native: bool = False, **scene_params):
     """Render the raw frame of a built-in scene or a cube file.
 
     Parameters
@@ -109,6 +109,10 @@ def render_scene(scene, design, *, seed: int = 0, noise: bool = True, angle_deg=
         Rotation of the colour wheel (``colorwheel`` only; a scene parameter).
     radiance_scale : float, optional
         Fixed exposure (default: auto-exposure, brightest pixel at 80 % of the full well).
+    native : bool
+        Return the scene itself (its own resolution) as the truth, for
+        :func:`kaleidospec.models.truth_on_grid` (exact on a calibrated model's grid) and
+        :func:`sim.frame.ground_truth` (the design's grid).
     **scene_params
         Passed to the scene builder.
 
@@ -118,7 +122,8 @@ def render_scene(scene, design, *, seed: int = 0, noise: bool = True, angle_deg=
     metadata : dict
         The sidecar (``design_hash``, ``radiance_scale``, ``scene``, ...).
     truth : (v, v, L) float32
-        The scene averaged onto the centre view's grid (:func:`sim.frame.ground_truth`); see
+        The scene averaged onto the centre view's grid (:func:`sim.frame.ground_truth`), or
+        with ``native`` the scene cube (H, W, L) itself; see
         :func:`kaleidospec.models.truth_on_grid` for a model's reconstruction grid.
     wavelengths : (L,) float64
     """
@@ -130,7 +135,8 @@ def render_scene(scene, design, *, seed: int = 0, noise: bool = True, angle_deg=
     meta["scene"] = str(scene)
     if scene_params:
         meta["scene_params"] = {k: v_ for k, v_ in scene_params.items()}
-    return frame, meta, ground_truth(design, cube), wl
+    truth = np.asarray(cube, np.float32) if native else ground_truth(design, cube)
+    return frame, meta, truth, wl
 
 
 class FrameRenderer:

@@ -22,21 +22,20 @@ its operator in :func:`recon.calibration.operator_from_calibration`.
 Grids.  The shifted and smeared models reconstruct on the calibration's grid: the centre view's
 box, with column 0 where the shortest band puts the view's first column, and only the part of
 the view that the mask codes (the guard stripe's columns are never measured).
-:func:`truth_on_grid` moves a ground truth onto it (a sub-pixel translation by
+:func:`truth_on_grid` moves a ground truth onto it (an exact area mean over cells translated by
 :func:`grid_offset`, from the design and the calibrated box and offsets).  The footprint model
 reconstructs on the comb target's texel grid, which is the scenes' grid: no translation.
 """
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from recon.errors import InputError
 
 __all__ = ["MODELS", "DEFAULT_MODEL", "RUN_MODELS", "GAINS", "SMEAR_SAMPLES", "check_model",
-           "holds", "model_of", "model_gains", "cube_grid", "grid_offset", "truth_on_grid"]
+           "holds", "model_of", "model_gains", "cube_grid", "grid_offset", "shifted_area_weights",
+           "truth_on_grid"]
 
 #: Every calibrated model a calibration can hold; the first (shifted) is in every calibration.
 MODELS = ("shifted", "smeared", "footprint")
@@ -126,27 +125,49 @@ def grid_offset(design, cal, model: str | None = None) -> tuple[float, float]:
     return by - r0, ox
 
 
-def truth_on_grid(truth, design, cal, model: str | None = None) -> np.ndarray:
-    """The ground truth (v, v, L) resampled onto the grid of the calibrated ``model``
-    (:func:`cube_grid`).
+def shifted_area_weights(n_in: int, n_out: int, offset: float, scale: float) -> np.ndarray:
+    r"""(n_out, n_in) weights of an exact area mean over shifted cells along one axis.
 
-    A bilinear sub-pixel translation by :func:`grid_offset`; pixels beyond the truth's edge take
-    the edge value.
+    Output cell :math:`i` covers :math:`[(i + o)\,s,\ (i + 1 + o)\,s]` in input texels
+    (:math:`o` the offset in output cells, :math:`s` input texels per output cell); its weight
+    on texel :math:`j` is the overlap with :math:`[j, j + 1]` over :math:`s`.  The parts of a
+    cell beyond the input's ends count as the edge texel (edge padding), so every row sums
+    to 1.
+    """
+    lo = (np.arange(n_out, dtype=np.float64) + offset) * scale
+    hi = lo + scale
+    a = np.arange(n_in + 1, dtype=np.float64)
+    w = np.clip(np.minimum(hi[:, None], a[None, 1:]) - np.maximum(lo[:, None], a[None, :-1]),
+                0.0, None)
+    w[:, 0] += np.clip(np.minimum(hi, 0.0) - lo, 0.0, None)
+    w[:, -1] += np.clip(hi - np.maximum(lo, float(n_in)), 0.0, None)
+    return w / scale
+
+
+def truth_on_grid(truth, design, cal, model: str | None = None) -> np.ndarray:
+    r"""The ground truth moved onto the grid of the calibrated ``model`` (:func:`cube_grid`),
+    (H, W, L) float32.
+
+    ``truth`` (Ht, Wt, L) covers the centre view's :math:`v \times v` square at any resolution
+    (:func:`sim.diffuser.cube_region`): a built-in scene at its own, finer resolution
+    (:func:`kaleidospec.instrument.scene_cube`), or its mean on the design's grid
+    (:func:`sim.frame.ground_truth`).  Grid pixel :math:`(y_v, x_v)` is the exact area mean of
+    the truth over the design-grid cell :math:`[y_v + o_y, y_v + 1 + o_y] \times [x_v + o_x,
+    x_v + 1 + o_x]` (:func:`grid_offset`; :func:`shifted_area_weights`, edge-padded).
+
+    Pass the scene at its own resolution wherever it exists.  From the :math:`v \times v` mean
+    this is a linear interpolation between neighbouring grid means, which has lost the detail
+    within a pixel and then smooths by the fractional offset: a truth that flatters a smooth
+    reconstruction (FISTA-TV, shifted model: by 0.05–0.35 dB on ``small``, 0.02–0.05 dB on
+    ``paper``).
     """
     t = np.asarray(truth, dtype=np.float32)
     (h, w), n = cube_grid(cal, model), cal.n_bands
     if t.ndim != 3 or t.shape[2] != n:
         raise InputError(f"truth shape {t.shape} does not have the calibration's {n} bands")
+    v = design.view_size_px
     oy, ox = grid_offset(design, cal, model)
-    iy, ix = math.floor(oy), math.floor(ox)
-    fy, fx = np.float32(oy - iy), np.float32(ox - ix)
-    # Edge-padded so that the (h+1, w+1) window at (iy, ix) always exists.
-    pad_lo_y, pad_lo_x = max(0, -iy), max(0, -ix)
-    pad_hi_y = max(0, iy + h + 1 - t.shape[0])
-    pad_hi_x = max(0, ix + w + 1 - t.shape[1])
-    tp = np.pad(t, ((pad_lo_y, pad_hi_y), (pad_lo_x, pad_hi_x), (0, 0)), mode="edge")
-    y0, x0 = iy + pad_lo_y, ix + pad_lo_x
-    a = tp[y0:y0 + h + 1, x0:x0 + w + 1]
-    out = ((1 - fy) * ((1 - fx) * a[:h, :w] + fx * a[:h, 1:w + 1])
-           + fy * ((1 - fx) * a[1:h + 1, :w] + fx * a[1:h + 1, 1:w + 1]))
+    wy = shifted_area_weights(t.shape[0], h, oy, t.shape[0] / v).astype(np.float32)
+    wx = shifted_area_weights(t.shape[1], w, ox, t.shape[1] / v).astype(np.float32)
+    out = np.einsum("ij,jkl,mk->iml", wy, t, wx, optimize=True)
     return np.ascontiguousarray(out, dtype=np.float32)

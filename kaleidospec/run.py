@@ -141,7 +141,9 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
 
     with output_parents(out_dir), atomic_dir(out_dir) as tmp:
         write_raw(tmp / "raw.exr", frame, meta)
-        tg = truth_on_grid(truth, design, cal, model)
+        # From the scene itself, built again (seconds) rather than held through the captures:
+        # its mean on the design's grid has lost the detail within a pixel.
+        tg = truth_on_grid(instrument.scene_cube(scene, design)[0], design, cal, model)
         write_cube(tmp / "truth.exr", tg, wl)
         rgb_truth, peak = srgb_image(tg, wl)
         write_png(tmp / "srgb_truth.png", rgb_truth)

@@ -67,7 +67,7 @@ SWEEPS: dict[str, tuple[str, str, str]] = {
     "prism-apex": ("prism_apex_deg", "°", "prism apex angle"),
 }
 #: Bumped when what a point computes changes, so old stored results are not reused.
-MEASURE_VERSION = 2
+MEASURE_VERSION = 3
 
 
 @dataclass(frozen=True)
@@ -260,9 +260,10 @@ def _reconstruct(design, s: dict) -> dict:
     t0 = time.perf_counter()
     cal = calibrate(design, progress=False)
     t_cal = time.perf_counter() - t0
-    frame, meta, truth, _ = render_scene(s["scene"], design, seed=int(s["seed"]))
+    # The scene itself (not its mean on the design's grid) goes onto the reconstruction grid.
+    frame, meta, scene, _ = render_scene(s["scene"], design, seed=int(s["seed"]), native=True)
     cube, info = reconstruct_views(frame, meta, cal, int(s["n_views"]), solver=s["solver"],
-                                   iters=int(s["iters"]), tau=s["tau"], truth=truth,
+                                   iters=int(s["iters"]), tau=s["tau"], truth=scene,
                                    design=design)
     tg = info["truth_grid"]
     return {"psnr_db": float(psnr(cube, tg)), "sam_deg": float(sam(cube, tg)),

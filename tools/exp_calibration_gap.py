@@ -115,11 +115,13 @@ def run(a) -> int:
             row = f"{name:<14}{n:>6}"
             errs = []
             for m in models:
-                _, info = reconstruct_views(frame, meta, cal, n, truth=truth, model=m, design=d)
+                # The scene itself onto the model's grid (its mean on the design's grid has
+                # lost the detail within a pixel).
+                _, info = reconstruct_views(frame, meta, cal, n, truth=cube, model=m, design=d)
                 row += f"{info['metrics']['psnr']:>11.2f}"
                 g = frame_measurements(clean, cmeta, cal, ids) / np.float32(cmeta["radiance_scale"])
                 errs.append(model_error(g, calibrated_operator(cal, ids, m),
-                                        truth_on_grid(truth, d, cal, m)))
+                                        truth_on_grid(cube, d, cal, m)))
             _, oinfo = reconstruct_oracle(frame, meta, d, n, truth=truth)
             row += f"{oinfo['metrics']['psnr']:>9.2f}"
             op = instrument.oracle_operator(d, n)

@@ -106,27 +106,30 @@ def oracle_run(design, n_views: int, inversion: bool, truth, wl, *, solver, iter
     return cube * np.float32(peak), info
 
 
-def _rendered_recon(frame, meta, design, cal, n, truth, *, solver, iters, tau, progress):
+def _rendered_recon(frame, meta, design, cal, n, scene, *, solver, iters, tau, progress):
     """Reconstruct a rendered frame: calibrated (``cal`` given) or with the exact operator
-    (``cal`` None). Returns (cube, info, truth on the cube's grid)."""
+    (``cal`` None); ``scene`` the scene cube at its own resolution. Returns (cube, info, truth
+    on the cube's grid)."""
+    from kaleidospec.instrument import ground_truth
     from kaleidospec.reconstruct import reconstruct_oracle, reconstruct_views
 
     if cal is None:
         cube, info = reconstruct_oracle(frame, meta, design, n, solver=solver, iters=iters,
                                         tau=tau, progress=progress)
-        return cube, info, truth
+        return cube, info, ground_truth(design, scene)
     cube, info = reconstruct_views(frame, meta, cal, n, solver=solver, iters=iters, tau=tau,
-                                   truth=truth, progress=progress, design=design)
+                                   truth=scene, progress=progress, design=design)
     # The calibration's grid leaves out the guard stripe: score on the truth moved onto it.
     return cube, info, info["truth_grid"]
 
 
 def run_scene(scene, design, design_t, cal, cal_t, *, solver, iters, tau, seed, noise, progress):
-    from kaleidospec.instrument import render_scene
+    from kaleidospec.instrument import ground_truth, render_scene
 
     factor = design_t.view_size_px / design.view_size_px
     rows, cubes = {}, {}
-    frame, meta, truth, wl = render_scene(scene, design, seed=seed, noise=noise)
+    frame, meta, native, wl = render_scene(scene, design, seed=seed, noise=noise, native=True)
+    truth = ground_truth(design, native)
 
     def record(key, cube, info, ref=truth, extra=None):
         rows[key] = {"config": CONFIGS[key], **metrics_of(cube, ref, wl),
@@ -136,8 +139,9 @@ def run_scene(scene, design, design_t, cal, cal_t, *, solver, iters, tau, seed, 
               f"SSIM {fmt(rows[key]['ssim'], '.3f')}", flush=True)
 
     # (a) traditional CASSI, rendered and calibrated at its own resolution.
-    frame_t, meta_t, truth_t, _ = render_scene(scene, design_t, seed=seed, noise=noise)
-    cube_t, info_t, grid_t = _rendered_recon(frame_t, meta_t, design_t, cal_t, 1, truth_t,
+    frame_t, meta_t, native_t, _ = render_scene(scene, design_t, seed=seed, noise=noise,
+                                                native=True)
+    cube_t, info_t, grid_t = _rendered_recon(frame_t, meta_t, design_t, cal_t, 1, native_t,
                                              solver=solver, iters=iters, tau=tau,
                                              progress=progress)
     full = metrics_of(cube_t, grid_t, wl)
@@ -150,7 +154,7 @@ def run_scene(scene, design, design_t, cal, cal_t, *, solver, iters, tau, seed, 
     cubes["a_full"] = (cube_t, grid_t)
     # (b) and (d'): the rendered kaleidoscope frame, calibrated operator.
     for key, n in (("b", 1), ("d'", 5)):
-        cube, info, grid = _rendered_recon(frame, meta, design, cal, n, truth, solver=solver,
+        cube, info, grid = _rendered_recon(frame, meta, design, cal, n, native, solver=solver,
                                            iters=iters, tau=tau, progress=progress)
         record(key, cube, info, ref=grid)
     # (c) and (d): the exact operator, simulated measurement, same noise draw.

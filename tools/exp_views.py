@@ -34,7 +34,7 @@ Usage::
     python3 tools/exp_views.py --views 1,2,3,5,9 --oracle --model footprint
     python3 tools/exp_views.py --scenes natural,my_cube.exr --iters 50 --out out/exp_views
     python3 tools/exp_views.py --design paper --oracle --oracle-views 5
-    python3 tools/exp_views.py --design paper --views 1,2,3,5 [--no-leads]
+    python3 tools/exp_views.py --design paper --views 1,2,3,5 [--no-leads] [--no-fields]
 
 ``--design paper`` simulates the paper's full 3376×2704 sensor and 26 bands (minutes of
 transport and calibration; the exact operator takes 10–20 minutes a reconstruction on 2
@@ -168,19 +168,22 @@ def run_scene(scene: str, design, cal, views, *, solver, iters, tau, seed, noise
     design's grid.  With ``retrace`` (a seed) also with the exact operator traced with that
     seed."""
     from kaleidospec.evaluate import colorchecker_patches, patch_delta_e2000
-    from kaleidospec.instrument import oracle_operator, render_scene
+    from kaleidospec.instrument import ground_truth, oracle_operator, render_scene
     from kaleidospec.reconstruct import reconstruct_oracle, reconstruct_views
 
     t0 = time.perf_counter()
-    frame, meta, truth, wl = render_scene(scene, design, seed=seed, noise=noise)
+    frame, meta, native, wl = render_scene(scene, design, seed=seed, noise=noise, native=True)
+    truth = ground_truth(design, native)
     # The chart's patches as a spectroradiometer would read them (mean spectra, CIEDE2000).
     patches = list(colorchecker_patches(design, cal, model).values()) \
         if str(scene) == "colorchecker" else []
     render_s = time.perf_counter() - t0
     rows, cubes = [], {}
     for n in views:
+        # The scene itself goes onto the model's grid (exact area means): its mean on the
+        # design's grid has lost the detail within a pixel.
         cube, info = reconstruct_views(frame, meta, cal, n, solver=solver, iters=iters, tau=tau,
-                                       truth=truth, progress=progress, model=model)
+                                       truth=native, progress=progress, model=model)
         # The shifted model's grid leaves out the guard stripe's columns: score against the
         # truth moved onto the model's grid (info["truth_grid"]), not the design's square grid.
         grid = info["truth_grid"]
@@ -375,6 +378,9 @@ def main(argv=None) -> int:
     ap.add_argument("--no-leads", action="store_true",
                     help="shifted model: every view image starts at its offsets, as before "
                          "recon.calibration.extent (for comparison)")
+    ap.add_argument("--no-fields", action="store_true",
+                    help="shifted model: homographies only, without the views' displacement "
+                         "fields (recon.calibration.board_field; for comparison)")
     ap.add_argument("--progress", action="store_true")
     a = ap.parse_args(argv)
 
@@ -415,10 +421,16 @@ def main(argv=None) -> int:
     if cal.view_leads is not None:
         print(f"view leads (recon.calibration.extent): {cal.view_leads.tolist()} columns"
               f"{' (dropped: --no-leads)' if a.no_leads else ''}", flush=True)
-    if a.no_leads:
+    if cal.view_fields is not None:
+        print(f"view displacement fields (recon.calibration.board_field): measured"
+              f"{' (dropped: --no-fields)' if a.no_fields else ''}", flush=True)
+    if a.no_leads or a.no_fields:
         import dataclasses
 
-        cal = dataclasses.replace(cal, view_leads=None)
+        if a.no_leads:
+            cal = dataclasses.replace(cal, view_leads=None)
+        if a.no_fields:
+            cal = dataclasses.replace(cal, view_fields=None, view_field_frames=None)
 
     results, images = {}, {}
     for scene in scenes:

@@ -20,8 +20,9 @@ from recon.calibration.dispersion import (DispersionFit, band_mean_positions, ba
                                           fit_dispersion, line_centroids, normalise_offsets,
                                           normalise_offsets_phase)
 from recon.calibration.extent import lead_columns, measure_leads, with_leads
-from recon.calibration.geometry import (apply_homography, find_corners, refine_homography,
-                                        to_view_coordinates, unmask, view_homographies)
+from recon.calibration.geometry import (apply_homography, board_field, find_corners,
+                                        refine_homography, to_view_coordinates, unmask,
+                                        view_homographies)
 from recon.calibration.mask import airy_kernel, airy_radius_px, mask_images, view_masks
 from recon.calibration.operator import (check_design, measurements, operator_from_calibration,
                                         read_measurements)
@@ -38,6 +39,6 @@ __all__ = [
     "load_cached", "load_calibration", "mask_images", "measurements", "normalise_offsets",
     "normalise_offsets_phase",
     "operator_from_calibration", "patch_spectra", "read_measurements", "refine_homography",
-    "save_calibration", "to_view_coordinates", "unmask", "view_homographies", "view_masks",
+    "save_calibration", "to_view_coordinates", "board_field", "unmask", "view_homographies", "view_masks",
     "measure_leads", "with_leads",
 ]

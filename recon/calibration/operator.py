@@ -5,10 +5,13 @@ r"""From a calibration to the forward operator and to the per-view measurements 
 .. math:: g_k = \sum_l C_{k,l} \odot S_{o_{k,l}}\big(W_k f_l\big),
 
 :math:`C` the calibrated mask images, :math:`o` the normalised offsets (absolute columns in the
-view's box) and :math:`W_k` the homography warp (the identity for the centre view), each view's
-image started ``view_leads`` columns before its offsets where the calibration holds them
-(:mod:`recon.calibration.extent`) — the "shifted-mask" model — or, when the calibration holds
-it, the "mask, then shift and smear" model :class:`recon.operators.smeared.SmearedCassi`
+view's box) and :math:`W_k` the homography warp (the identity for the centre view; where the
+calibration holds the views' displacement fields, :func:`~recon.calibration.board_field`, every
+view's homography bent by its field, the centre's too, so that the grid is the board's plane
+undistorted), each view's image started ``view_leads`` columns before its offsets where the
+calibration holds them (:mod:`recon.calibration.extent`) — the "shifted-mask" model — or, when
+the calibration holds it, the "mask, then shift and smear" model
+:class:`recon.operators.smeared.SmearedCassi`
 
 .. math:: g_k = \sum_l D_{k,l}\big(M_k \odot W_k f_l\big),
 
@@ -125,13 +128,18 @@ def _unblurred(cal: Calibration, view_ids, kind: str, band_scale):
         a.data *= scale[a.indices // (ht * wt)].astype(np.float32)
         return SparseMatrixOperator(a, (n_bands, ht, wt),
                                     (len(idx),) + tuple(cal.view_boxes[0, 2:]))
-    def warp(m, shape):
-        if np.allclose(m, np.eye(3), atol=1e-9) and shape == (h, w):
-            return None
-        return HomographyWarp(m, (h, w), shape)
+
+    def warp(m, shape, i, lead=0):
+        # With the views' displacement fields the grid is the board's plane seen through the
+        # centre's homography, undistorted: every view, the centre too, bends it by its field.
+        if cal.view_fields is None:
+            if np.allclose(m, np.eye(3), atol=1e-9) and shape == (h, w):
+                return None
+            return HomographyWarp(m, (h, w), shape)
+        return HomographyWarp(m, (h, w), shape, view_field=cal.field(i).moved(lead))
 
     if kind == "smeared":
-        warps = [warp(cal.homographies[i], view_shape) for i in idx]
+        warps = [warp(cal.homographies[i], view_shape, i) for i in idx]
         # A band's scale multiplies its kernel: D_kl (M_k * W_k f_l) is linear in the weights.
         return SmearedCassi(cal.view_masks[idx], cal.tap_start[idx],
                             cal.tap_weights[idx] * scale[None, :, None], warps=warps,
@@ -142,7 +150,7 @@ def _unblurred(cal: Calibration, view_ids, kind: str, band_scale):
     for i in idx:
         lead = 0 if cal.view_leads is None else int(cal.view_leads[i])
         m, o = led_view(cal.homographies[i], cal.offsets[i], lead)
-        warps.append(warp(m, (view_shape[0], view_shape[1] + lead)))
+        warps.append(warp(m, (view_shape[0], view_shape[1] + lead), i, lead))
         offsets.append(o)
     # The scale goes into the operator's interpolation weights: a scaled copy of the used
     # views' mask images would be (K, L, Hv, Wm) float32 more (0.3 GB for 5 paper views).

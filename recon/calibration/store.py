@@ -46,6 +46,14 @@ and, optionally (views whose light begins before their offsets,
 view_leads       (K,) int64          columns each view image starts before its offsets, >= 0
 ===============  ==================  ===========================================================
 
+and, optionally (what the homographies cannot hold of each view's geometry, measured on the
+checkerboard; :class:`~recon.operators.warp.DisplacementField` in view coordinates),
+
+=================  =================  ========================================================
+view_fields        (K, 2, T) float64  polynomial coefficients of each view's displacement
+view_field_frames  (K, 4) float64     their frames (x_c, y_c, s_x, s_y)
+=================  =================  ========================================================
+
 and ``<name>.json`` holds ``design_hash``, ``cube_shape`` ([H, W, L], the API layout),
 ``view_ids``, ``captures`` (what it was made from) and ``created`` (UTC, ISO 8601).  Both files
 are written atomically (image first, then sidecar); loading validates every field and shape.
@@ -72,13 +80,14 @@ FORMAT = "kaleidospec-calibration"
 VERSION = 1
 #: Calibration code version (part of the cache key, :func:`calibration_path`): bump it when the
 #: capture renderer or the application's calibration steps (kaleidospec.calibrate) change.
-CODE_VERSION = 8
+CODE_VERSION = 9
 _CODE_VERSION: str | None = None
 ARRAY_FIELDS = ("view_boxes", "homographies", "mask_images", "offsets", "gains", "wavelengths")
 #: Arrays a calibration may hold (saved only when set).
 OPTIONAL_ARRAY_FIELDS = ("tap_start", "tap_weights", "view_masks", "smear_gains",
                          "footprint_grid", "footprint_indptr", "footprint_indices",
-                         "footprint_data", "footprint_gains", "psf", "view_leads")
+                         "footprint_data", "footprint_gains", "psf", "view_leads", "view_fields",
+                         "view_field_frames")
 _FOOTPRINT = ("footprint_grid", "footprint_indptr", "footprint_indices", "footprint_data")
 JSON_FIELDS = ("design_hash", "cube_shape", "view_ids", "captures", "created")
 _HASH_RE = re.compile(r"^[0-9A-Za-z_-]{1,128}$")
@@ -115,6 +124,8 @@ class Calibration:
     footprint_gains: np.ndarray | None = None
     psf: np.ndarray | None = None
     view_leads: np.ndarray | None = None
+    view_fields: np.ndarray | None = None
+    view_field_frames: np.ndarray | None = None
 
     def __post_init__(self):
         self.view_ids = check_view_ids(self.view_ids)
@@ -155,6 +166,7 @@ class Calibration:
                 raise InputError(f"view_leads up to {int(np.max(leads))} columns: longer than "
                                  f"the view ({self.view_shape[1]} columns)")
             self.view_leads = leads.astype(np.int64)
+        self._check_fields()
         if self.psf is not None:
             from recon.operators.blur import check_kernel
 
@@ -192,6 +204,32 @@ class Calibration:
             self.view_masks = _array(self.view_masks, "view_masks", np.float32, (k, hv, wv))
         if self.smear_gains is not None:
             self.smear_gains = _array(self.smear_gains, "smear_gains", np.float64, (n_bands,))
+
+    def _check_fields(self) -> None:
+        if (self.view_fields is None) != (self.view_field_frames is None):
+            raise InputError("view_fields and view_field_frames go together")
+        if self.view_fields is None:
+            return
+        from recon.operators.warp import DisplacementField
+
+        k = len(self.view_ids)
+        c = np.asarray(self.view_fields, dtype=np.float64)
+        if c.ndim != 3 or c.shape[:2] != (k, 2):
+            raise InputError(f"view_fields must be (K={k}, 2, T), got shape {c.shape}")
+        self.view_fields = c
+        self.view_field_frames = _array(self.view_field_frames, "view_field_frames", np.float64,
+                                        (k, 4))
+        for i in range(k):
+            DisplacementField(c[i], self.view_field_frames[i])     # validates
+
+    def field(self, i: int):
+        """View ``i``'s (index in ``view_ids``) :class:`~recon.operators.warp.DisplacementField`
+        in view coordinates, or None when the calibration holds none."""
+        if self.view_fields is None:
+            return None
+        from recon.operators.warp import DisplacementField
+
+        return DisplacementField(self.view_fields[i], self.view_field_frames[i])
 
     def _check_footprint(self) -> None:
         given = [getattr(self, n) is not None for n in _FOOTPRINT]
@@ -273,11 +311,12 @@ class Calibration:
 def build_calibration(*, view_ids, view_boxes, box_homographies, mask_images, wavelengths,
                       dispersion, checker_dispersion, gains=None, design_hash=None,
                       captures=(), snap_px: float = 0.05, grid: str = "union",
-                      phase: bool = False, band_positions=None) -> Calibration:
+                      phase: bool = False, band_positions=None, box_fields=None) -> Calibration:
     r"""Assemble a :class:`Calibration` from the results of the individual steps.
 
     Normalises the offsets (smallest 0, :func:`~recon.calibration.dispersion.normalise_offsets`),
-    converts the box homographies to view coordinates at the checkerboard's wavelength
+    converts the box homographies (and the views' displacement fields, if given) to view
+    coordinates at the checkerboard's wavelength
     (:func:`~recon.calibration.geometry.to_view_coordinates`) and sets the cube to the centre
     view's rows and the columns that the views code together (``grid``); every view image is
     :math:`H_v \times W_v`, :math:`W_v = W_m - \lceil\max o\rceil`.
@@ -325,6 +364,8 @@ def build_calibration(*, view_ids, view_boxes, box_homographies, mask_images, wa
         turned into smear kernels (``tap_start``, ``tap_weights``,
         :func:`~recon.operators.smeared.taps_from_positions`).  The view masks are recovered
         afterwards (:func:`~recon.calibration.mask.view_masks`).
+    box_fields : sequence of DisplacementField, optional
+        Each view's :func:`~recon.calibration.geometry.board_field` (box coordinates).
     """
     ids = check_view_ids(view_ids)
     if 0 not in ids:
@@ -361,12 +402,55 @@ def build_calibration(*, view_ids, view_boxes, box_homographies, mask_images, wa
         shift = shift[:, None, None] if np.ndim(shift) else shift
         bp = np.clip(bp - shift, 0.0, math.ceil(float(offsets.max()) - _SNAP))
         tap_start, tap_weights = taps_from_positions(bp)
+    fields = frames = None
+    if box_fields is not None:
+        if len(box_fields) != len(ids):
+            raise InputError(f"box_fields has {len(box_fields)} entries for {len(ids)} views")
+        # View column x_v is box column x_v + o_k at the board's wavelength.
+        moved = [f.moved(-float(chk[k])) for k, f in enumerate(box_fields)]
+        hv_, moved = _anchor_fields(hv_, moved, ids.index(0))
+        fields = np.stack([f.coeffs for f in moved])
+        frames = np.stack([f.frame for f in moved])
     return Calibration(view_ids=ids, view_boxes=view_boxes, homographies=hv_,
                        mask_images=masks, offsets=offsets,
                        gains=np.ones(n_bands) if gains is None else gains,
                        wavelengths=wavelengths, cube_shape=(masks.shape[2], width, n_bands),
                        design_hash=design_hash, captures=list(captures),
-                       tap_start=tap_start, tap_weights=tap_weights)
+                       tap_start=tap_start, tap_weights=tap_weights, view_fields=fields,
+                       view_field_frames=frames)
+
+
+def _anchor_fields(homographies, fields, centre: int):
+    r"""Keep the grid on the centre view's pixels, up to the fields' bend.
+
+    With fields every view maps grid point :math:`g` to :math:`H_k g + d_k(H_k g)` (the centre
+    :math:`g + d_0(g)`).  The affine part :math:`A` of :math:`d_0` (its terms of degree ≤ 1)
+    would move and stretch the grid against the centre's pixels, where the truth and the
+    offsets place it; it moves into the homographies instead: :math:`d_0 \leftarrow d_0 - A`,
+    :math:`H_k \leftarrow H_k (I - A)` for the other views (to first order in the fields, as they
+    are applied).
+    """
+    from recon.operators.warp import DisplacementField
+
+    c0 = fields[centre]
+    xc, yc, sx, sy = c0.frame
+    # Terms in order 1, xi, eta, ...: A(x, y) = a + b (x - xc)/sx + c (y - yc)/sy.
+    a, b, c = c0.coeffs[:, 0], c0.coeffs[:, 1], c0.coeffs[:, 2]
+    lin = np.stack([b / sx, c / sy], axis=1)                         # (2, 2)
+    off = a - lin @ np.array([xc, yc])
+    i_minus_a = np.eye(3)
+    i_minus_a[:2, :2] -= lin
+    i_minus_a[:2, 2] -= off
+    hs = np.array(homographies, dtype=np.float64)
+    for k, h in enumerate(homographies):
+        if k != centre:                 # the centre's map stays g + d_0(g)
+            m = h @ i_minus_a
+            hs[k] = m / m[2, 2]
+    rest = c0.coeffs.copy()
+    rest[:, :3] = 0.0
+    out = list(fields)
+    out[centre] = DisplacementField(rest, c0.frame)
+    return hs, out
 
 
 def coded_columns(mask_images, offsets, view_width: int, level: float = 0.1) -> np.ndarray:

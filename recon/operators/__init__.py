@@ -12,7 +12,8 @@ from recon.operators.dispersion import Dispersion
 from recon.operators.mask import MaskModulation
 from recon.operators.smeared import SmearedCassi, taps_from_positions
 from recon.operators.sparse import SparseMatrixOperator
-from recon.operators.warp import Flip, HomographyWarp, Identity, Translate, Warp, WarpOperator
+from recon.operators.warp import (DisplacementField, Flip, HomographyWarp, Identity, Translate,
+                                  Warp, WarpOperator)
 
 __all__ = [
     "LinearOperator", "MatrixOperator", "ScaledOperator", "dot_test",
@@ -20,5 +21,5 @@ __all__ = [
     "BandWarpCassi",
     "SmearedCassi", "taps_from_positions", "SparseMatrixOperator", "BlurredOperator",
     "Dispersion", "MaskModulation",
-    "Warp", "Identity", "Flip", "Translate", "HomographyWarp", "WarpOperator",
+    "Warp", "Identity", "Flip", "Translate", "HomographyWarp", "DisplacementField", "WarpOperator",
 ]

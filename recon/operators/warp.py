@@ -10,6 +10,9 @@ A warp maps a centre-view image of shape ``in_shape`` = (H, W) to a view image o
   ``scipy.sparse`` CSR matrix :math:`W \in \mathbb{R}^{H_vW_v \times HW}` (four entries per row);
   samples that fall outside the centre image read zeros.
 - :class:`Translate` is a homography with a pure translation.
+- A :class:`DisplacementField` (a smooth 2-D polynomial) corrects a homography for what it
+  cannot hold, such as the curvature a prism's field-dependent deviation gives the image;
+  :class:`HomographyWarp` takes one for each side of the map.
 
 Coordinates are pixel indices, ``x`` along columns and ``y`` along rows, pixel centres at
 integers (the OpenCV convention).  A homography ``matrix`` maps centre coordinates
@@ -187,12 +190,94 @@ class Flip(Warp):
         return f"Flip(axis={self.axes}, shape={self.in_shape})"
 
 
+class DisplacementField:
+    r"""A smooth displacement of image coordinates, a 2-D polynomial of total degree ``deg``:
+
+    .. math:: d(x, y) = \sum_{i + j \le \deg} c_{ij}\, \xi^i \eta^j, \qquad
+              \xi = (x - x_c)/s_x,\ \eta = (y - y_c)/s_y,
+
+    one coefficient row for :math:`d_x` and one for :math:`d_y`.
+
+    Parameters
+    ----------
+    coeffs : (2, T) array_like
+        :math:`c_{ij}` of :math:`d_x` and :math:`d_y`, in the order of :meth:`terms`;
+        ``T = (deg + 1)(deg + 2) / 2``.
+    frame : (4,) array_like
+        :math:`(x_c, y_c, s_x, s_y)`, scales positive.
+    """
+
+    def __init__(self, coeffs, frame):
+        c = np.array(coeffs, dtype=np.float64)
+        f = np.array(frame, dtype=np.float64)
+        if c.ndim != 2 or c.shape[0] != 2 or not np.all(np.isfinite(c)):
+            raise InputError(f"coeffs must be a finite (2, T) array, got shape {c.shape}")
+        deg = int(round((np.sqrt(8 * c.shape[1] + 1) - 3) / 2))
+        if (deg + 1) * (deg + 2) // 2 != c.shape[1]:
+            raise InputError(f"{c.shape[1]} coefficients are no full 2-D polynomial")
+        if f.shape != (4,) or not np.all(np.isfinite(f)) or f[2] <= 0 or f[3] <= 0:
+            raise InputError(f"frame must be finite (x_c, y_c, s_x > 0, s_y > 0), got {frame!r}")
+        self.coeffs, self.frame, self.degree = c, f, deg
+
+    @staticmethod
+    def terms(deg: int) -> list[tuple[int, int]]:
+        r"""The exponents (i, j) of :math:`\xi^i \eta^j`, in coefficient order."""
+        return [(i, t - i) for t in range(deg + 1) for i in range(t, -1, -1)]
+
+    @classmethod
+    def fit(cls, points, shifts, deg: int = 2, frame=None) -> "DisplacementField":
+        """Least-squares field through ``shifts`` (N, 2) measured at ``points`` (N, 2) (x, y);
+        ``frame`` defaults to the points' centre and half-extent."""
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        d = np.asarray(shifts, dtype=np.float64).reshape(-1, 2)
+        n_terms = (deg + 1) * (deg + 2) // 2
+        if p.shape != d.shape or p.shape[0] < n_terms or not np.all(np.isfinite(p) & np.isfinite(d)):
+            raise InputError(f"need at least {n_terms} finite points and shifts of the same "
+                             f"shape, got {p.shape} and {d.shape}")
+        if frame is None:
+            lo, hi = p.min(axis=0), p.max(axis=0)
+            frame = (*(0.5 * (lo + hi)), *np.maximum(0.5 * (hi - lo), 1.0))
+        field = cls(np.zeros((2, n_terms)), frame)
+        a = field._design(p[:, 0], p[:, 1])
+        coef, *_ = np.linalg.lstsq(a, d, rcond=None)
+        field.coeffs = np.ascontiguousarray(coef.T)
+        return field
+
+    def _design(self, x, y) -> np.ndarray:
+        xc, yc, sx, sy = self.frame
+        xi = (np.asarray(x, dtype=np.float64) - xc) / sx
+        eta = (np.asarray(y, dtype=np.float64) - yc) / sy
+        return np.stack([xi ** i * eta ** j for i, j in self.terms(self.degree)], axis=-1)
+
+    def __call__(self, x, y) -> tuple[np.ndarray, np.ndarray]:
+        """:math:`(d_x, d_y)` at points ``x``, ``y`` (any matching shapes)."""
+        a = self._design(x, y)
+        return a @ self.coeffs[0], a @ self.coeffs[1]
+
+    def moved(self, dx: float) -> "DisplacementField":
+        """The same field in coordinates whose x origin lies ``dx`` further left
+        (:math:`x' = x + dx`)."""
+        xc, yc, sx, sy = self.frame
+        return DisplacementField(self.coeffs, (xc + dx, yc, sx, sy))
+
+    def __repr__(self):
+        return f"DisplacementField(degree {self.degree}, frame {tuple(self.frame)})"
+
+
 class HomographyWarp(Warp):
     r"""Bilinear resampling through a 3×3 homography, precomputed as a sparse CSR matrix.
 
     The view pixel :math:`p = (x_v, y_v)` reads the centre image at
     :math:`q = \pi(\mathrm{matrix}^{-1} (x_v, y_v, 1)^\top)` (:math:`\pi` divides by the third
     coordinate) with bilinear weights; neighbours outside the centre image count as zero.
+
+    With displacement fields (:class:`DisplacementField`) the map is
+    :math:`p = H(q - d_c(q)) + d_v(H(q - d_c(q)))` — the centre image's own distortion
+    :math:`d_c` taken out, the homography, the view's distortion :math:`d_v` put in — and the
+    view pixel reads the centre image at its inverse to first order in the fields (they are
+    smooth and below a pixel):
+
+    .. math:: q = q' + d_c(q'), \qquad q' = \pi\big(H^{-1}(p - d_v(p))\big).
 
     Parameters
     ----------
@@ -202,18 +287,25 @@ class HomographyWarp(Warp):
         Centre image shape.
     out_shape : (Hv, Wv), optional
         View image shape (default ``in_shape``).
+    view_field, centre_field : DisplacementField, optional
+        :math:`d_v` in view coordinates, :math:`d_c` in centre coordinates (default none).
     """
 
-    def __init__(self, matrix, in_shape, out_shape=None):
+    def __init__(self, matrix, in_shape, out_shape=None, view_field=None, centre_field=None):
         m = np.array(matrix, dtype=np.float64)
         if m.shape != (3, 3) or not np.all(np.isfinite(m)):
             raise InputError(f"homography must be a finite 3x3 matrix, got shape {m.shape}")
         if abs(np.linalg.det(m)) < 1e-12 * max(1.0, np.abs(m).max() ** 3):
             raise InputError("homography matrix is singular")
+        for name, f in (("view_field", view_field), ("centre_field", centre_field)):
+            if f is not None and not isinstance(f, DisplacementField):
+                raise InputError(f"{name} must be a DisplacementField, got {type(f).__name__}")
         self.H = m
+        self.view_field, self.centre_field = view_field, centre_field
         self.in_shape = _image_shape(in_shape)
         self.out_shape = self.in_shape if out_shape is None else _image_shape(out_shape)
-        self._m = _bilinear_matrix(np.linalg.inv(m), self.in_shape, self.out_shape)
+        xs, ys, ok = _source_points(np.linalg.inv(m), self.out_shape, view_field, centre_field)
+        self._m = _bilinear_matrix(xs, ys, ok, self.in_shape, self.out_shape)
         self._mt = self._m.T.tocsr()
         self._n_c = None
 
@@ -243,7 +335,8 @@ class HomographyWarp(Warp):
         return self._n_c
 
     def __repr__(self):
-        return f"HomographyWarp({self.in_shape} -> {self.out_shape})"
+        fields = "" if self.view_field is None and self.centre_field is None else ", with fields"
+        return f"HomographyWarp({self.in_shape} -> {self.out_shape}{fields})"
 
 
 class Translate(Warp):
@@ -337,17 +430,32 @@ def cube_shape_of(cube_shape, n_bands: int, warps, default_hw) -> tuple[int, int
     return cs
 
 
-def _bilinear_matrix(inv: np.ndarray, in_shape, out_shape) -> sp.csr_matrix:
-    """CSR matrix (Hv*Wv, H*W), float32, of bilinear sampling at ``inv @ (x, y, 1)``."""
-    h, w = in_shape
+def _source_points(inv: np.ndarray, out_shape, view_field=None, centre_field=None):
+    """Where every view pixel reads the centre image: (xs, ys, ok) flat over the view
+    (:class:`HomographyWarp`); ``ok`` False where the homography sends it to infinity."""
     hv, wv = out_shape
     yv, xv = np.mgrid[0:hv, 0:wv]
-    p = np.stack([xv.ravel(), yv.ravel(), np.ones(hv * wv)]).astype(np.float64)
-    q = inv @ p
+    px, py = xv.ravel().astype(np.float64), yv.ravel().astype(np.float64)
+    if view_field is not None:
+        dx, dy = view_field(px, py)
+        px, py = px - dx, py - dy
+    q = inv @ np.stack([px, py, np.ones(hv * wv)])
     ok = q[2] > 1e-12
     with np.errstate(divide="ignore", invalid="ignore"):
         xs = np.where(ok, q[0] / np.where(ok, q[2], 1.0), -2.0)
         ys = np.where(ok, q[1] / np.where(ok, q[2], 1.0), -2.0)
+    if centre_field is not None:
+        dx, dy = centre_field(xs, ys)
+        xs, ys = np.where(ok, xs + dx, -2.0), np.where(ok, ys + dy, -2.0)
+    return xs, ys, ok
+
+
+def _bilinear_matrix(xs: np.ndarray, ys: np.ndarray, ok: np.ndarray, in_shape,
+                     out_shape) -> sp.csr_matrix:
+    """CSR matrix (Hv*Wv, H*W), float32, of bilinear sampling at the points (xs, ys) (flat,
+    one per view pixel; none where ``ok`` is False)."""
+    h, w = in_shape
+    hv, wv = out_shape
     x0 = np.floor(xs)
     y0 = np.floor(ys)
     fx = xs - x0

@@ -258,3 +258,75 @@ def test_a_calibrated_psf_blurs_the_shifted_and_smeared_models_not_the_footprint
         assert dot_test(op, rng) < 1e-6
     assert not isinstance(operator_from_calibration(blurred, model="footprint"),
                           BlurredOperator)
+
+
+def test_view_fields_go_into_every_view_warp_in_view_coordinates(tmp_path):
+    """Box fields become view-coordinate fields (view column x_v is box column x_v + o_k at
+    the board's wavelength); every view, the centre too, warps the grid through its
+    homography and field, a led view with its field moved by its lead; saved and loaded."""
+    import dataclasses
+
+    from recon.calibration import load_calibration, save_calibration
+    from recon.calibration.extent import led_view
+    from recon.operators import CalibratedCassi, DisplacementField, HomographyWarp
+
+    rng = np.random.default_rng(9)
+    k, n_bands, hv, wm = 3, 4, 12, 40
+    phi = np.stack([np.array([0.0, 2.0, 3.5, 5.0])] * k)
+    masks = (rng.random((k, n_bands, hv, wm)) > 0.5).astype(np.float32)
+    hb = np.stack([np.eye(3)] + [np.array([[-1, 0, wm - 1.0], [0, 1, 0.5], [0, 0, 1]])] * 2)
+    box = [DisplacementField(0.3 * rng.uniform(-1, 1, (2, 6)), (wm / 2, hv / 2, wm / 2, hv / 2))
+           for _ in range(k)]
+    cal = build_calibration(
+        view_ids=(0, 1, 2), view_boxes=[(0, 40, hv, wm), (0, 0, hv, wm), (0, 80, hv, wm)],
+        box_homographies=hb, mask_images=masks, wavelengths=[450.0, 500.0, 550.0, 600.0],
+        dispersion=phi, checker_dispersion=phi[:, 2], box_fields=box)
+    chk = phi[:, 2] - phi.min()
+    xs, ys = rng.uniform(0, wm, 8), rng.uniform(0, hv, 8)
+    for i in (1, 2):
+        np.testing.assert_allclose(np.stack(cal.field(i)(xs - chk[i], ys)),
+                                   np.stack(box[i](xs, ys)), atol=1e-12)
+    # The centre keeps only its bend (its affine part went into the other homographies)...
+    assert np.all(cal.view_fields[0][:, :3] == 0)
+    np.testing.assert_allclose(cal.view_fields[0][:, 3:], box[0].coeffs[:, 3:])
+    # ... and a scene point still lands where the fields and homographies put it: centre pixel
+    # x0 = g + d0(g), view pixel H g + d(H g), before (from the box data) and after.
+    from recon.calibration.geometry import apply_homography, to_view_coordinates
+
+    h_view = to_view_coordinates(hb, chk)
+    d0 = box[0].moved(-chk[0])
+    g = np.stack([rng.uniform(5, 30, 8), rng.uniform(2, 10, 8)], axis=1)
+    x0 = g + np.stack(d0(*g.T), axis=1)
+    g_new = x0 - np.stack(cal.field(0)(*x0.T), axis=1)
+    for i in (1, 2):
+        di = box[i].moved(-chk[i])
+        before = apply_homography(h_view[i], g)
+        before = before + np.stack(di(*before.T), axis=1)
+        after = apply_homography(cal.homographies[i], g_new)
+        after = after + np.stack(cal.field(i)(*after.T), axis=1)
+        # First order in the fields: here up to 0.3 px, changing by 0.05 px a pixel.
+        np.testing.assert_allclose(after, before, atol=0.04)
+    cal = dataclasses.replace(cal, view_leads=np.array([0, 3, 0]))
+    op = operator_from_calibration(cal, model="shifted")
+    h, w, _ = cal.cube_shape
+    wv = cal.view_shape[1]
+    warps, offsets = [], []
+    for i, lead in enumerate((0, 3, 0)):
+        m, o = led_view(cal.homographies[i], cal.offsets[i], lead)
+        warps.append(HomographyWarp(m, (h, w), (h, wv + lead),
+                                    view_field=cal.field(i).moved(lead)))
+        offsets.append(o)
+    by_hand = CalibratedCassi(cal.mask_images, np.stack(offsets), warps, (n_bands, h, w))
+    x = rng.random(op.ishape).astype(np.float32)
+    np.testing.assert_array_equal(op.forward(x), by_hand.forward(x))
+    plain = operator_from_calibration(
+        dataclasses.replace(cal, view_fields=None, view_field_frames=None), model="shifted")
+    assert np.abs(op.forward(x) - plain.forward(x)).max() > 0.05
+    save_calibration(tmp_path / "cal", cal)
+    back = load_calibration(tmp_path / "cal")
+    np.testing.assert_array_equal(back.view_fields, cal.view_fields)
+    np.testing.assert_array_equal(back.view_field_frames, cal.view_field_frames)
+    with pytest.raises(InputError, match="go together"):
+        dataclasses.replace(cal, view_field_frames=None)
+    with pytest.raises(InputError, match="view_fields"):
+        dataclasses.replace(cal, view_fields=cal.view_fields[:2])

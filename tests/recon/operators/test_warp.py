@@ -143,3 +143,72 @@ def test_translate():
 def test_bad_input(make):
     with pytest.raises(InputError):
         make()
+
+
+# ------------------------------------------------------------------ displacement fields
+def _field(rng, scale=0.4, frame=(25.0, 20.0, 25.0, 20.0)):
+    from recon.operators import DisplacementField
+
+    return DisplacementField(scale * rng.uniform(-1, 1, (2, 6)), frame)
+
+
+def test_displacement_field_is_fitted_and_moved():
+    from recon.operators import DisplacementField
+
+    rng = np.random.default_rng(4)
+    f = _field(rng)
+    pts = rng.uniform(0, 50, (30, 2))
+    g = DisplacementField.fit(pts, np.stack(f(pts[:, 0], pts[:, 1]), axis=1), 2,
+                              frame=f.frame)
+    np.testing.assert_allclose(g.coeffs, f.coeffs, atol=1e-12)
+    # The frame only reparametrises: a fit in the points' own frame is the same field.
+    h = DisplacementField.fit(pts, np.stack(f(pts[:, 0], pts[:, 1]), axis=1), 2)
+    np.testing.assert_allclose(np.stack(h(7.0, 9.0)), np.stack(f(7.0, 9.0)), atol=1e-10)
+    # moved(dx): the same field in coordinates x' = x + dx.
+    m = f.moved(7.5)
+    np.testing.assert_allclose(np.stack(m(pts[:, 0] + 7.5, pts[:, 1])),
+                               np.stack(f(pts[:, 0], pts[:, 1])), atol=1e-12)
+
+
+@pytest.mark.parametrize("coeffs, frame", [(np.zeros((2, 5)), (0, 0, 1, 1)),
+                                           (np.zeros((3, 6)), (0, 0, 1, 1)),
+                                           (np.full((2, 6), np.nan), (0, 0, 1, 1)),
+                                           (np.zeros((2, 6)), (0, 0, 0, 1))])
+def test_displacement_field_bad_inputs(coeffs, frame):
+    from recon.operators import DisplacementField
+
+    with pytest.raises(InputError):
+        DisplacementField(coeffs, frame)
+    with pytest.raises(InputError, match="at least 6"):
+        DisplacementField.fit(np.zeros((5, 2)), np.zeros((5, 2)), 2)
+
+
+def test_homography_warp_with_fields_reads_where_the_fields_say():
+    rng = np.random.default_rng(5)
+    h = np.array([[0.98, 0.02, 3.0], [-0.01, 1.01, -2.0], [2e-4, -1e-4, 1.0]])
+    dv, dc = _field(rng), _field(rng)
+    in_shape, out_shape = (40, 50), (36, 44)
+    warp = HomographyWarp(h, in_shape, out_shape, view_field=dv, centre_field=dc)
+    # Bilinear interpolation of a linear ramp is exact: the view shows the ramp at q.
+    yy, xx = np.mgrid[0:in_shape[0], 0:in_shape[1]].astype(np.float64)
+    ramp = 0.3 * xx + 0.7 * yy + 1.0
+    out = warp.apply(ramp[None])[0]
+    py, px = np.mgrid[0:out_shape[0], 0:out_shape[1]].astype(np.float64)
+    ex, ey = dv(px, py)
+    q = np.linalg.inv(h) @ np.stack([(px - ex).ravel(), (py - ey).ravel(), np.ones(px.size)])
+    qx, qy = q[0] / q[2], q[1] / q[2]
+    cx, cy = dc(qx, qy)
+    qx, qy = (qx + cx).reshape(px.shape), (qy + cy).reshape(px.shape)
+    inside = (qx > 0.5) & (qx < in_shape[1] - 1.5) & (qy > 0.5) & (qy < in_shape[0] - 1.5)
+    assert inside.mean() > 0.6
+    np.testing.assert_allclose(out[inside], (0.3 * qx + 0.7 * qy + 1.0)[inside], atol=1e-4)
+    # Zero fields are no fields; the adjoint is exact.
+    from recon.operators import DisplacementField
+
+    zero = DisplacementField(np.zeros((2, 6)), (0.0, 0.0, 1.0, 1.0))
+    plain = HomographyWarp(h, in_shape, out_shape)
+    with_zero = HomographyWarp(h, in_shape, out_shape, view_field=zero, centre_field=zero)
+    assert (plain.matrix() != with_zero.matrix()).nnz == 0
+    assert dot_test(WarpOperator(warp, 3), rng) < 1e-12
+    with pytest.raises(InputError, match="DisplacementField"):
+        HomographyWarp(h, in_shape, out_shape, view_field=np.zeros((2, 6)))
