@@ -110,18 +110,19 @@ def run(a) -> int:
         frame, meta = simulate_frame(d, cube, wl, seed=a.seed)
         clean, cmeta = simulate_frame(d, cube, wl, noise=False, radiance_scale=meta["radiance_scale"])
         truth = ground_truth(d, cube)
+        # The scene itself onto each model's grid (its mean on the design's grid has lost the
+        # detail within a pixel).
+        on_grid = {m: truth_on_grid(cube, d, cal, m) for m in models}
         for n in counts:
             ids = first_views(n)
             row = f"{name:<14}{n:>6}"
             errs = []
             for m in models:
-                # The scene itself onto the model's grid (its mean on the design's grid has
-                # lost the detail within a pixel).
-                _, info = reconstruct_views(frame, meta, cal, n, truth=cube, model=m, design=d)
+                _, info = reconstruct_views(frame, meta, cal, n, truth=on_grid[m], model=m,
+                                            design=d)
                 row += f"{info['metrics']['psnr']:>11.2f}"
                 g = frame_measurements(clean, cmeta, cal, ids) / np.float32(cmeta["radiance_scale"])
-                errs.append(model_error(g, calibrated_operator(cal, ids, m),
-                                        truth_on_grid(cube, d, cal, m)))
+                errs.append(model_error(g, calibrated_operator(cal, ids, m), on_grid[m]))
             _, oinfo = reconstruct_oracle(frame, meta, d, n, truth=truth)
             row += f"{oinfo['metrics']['psnr']:>9.2f}"
             op = instrument.oracle_operator(d, n)

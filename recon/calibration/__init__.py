@@ -33,12 +33,11 @@ from recon.calibration.views import VIEW_FLIPS, VIEW_GRID, find_view_boxes
 
 __all__ = [
     "Calibration", "DispersionFit", "VIEW_FLIPS", "VIEW_GRID", "airy_kernel", "airy_radius_px",
-    "apply_gains", "apply_homography", "band_mean_positions", "band_positions",
-    "build_calibration", "calibration_path", "check_design", "lead_columns",
-    "find_corners", "find_view_boxes", "fit_dispersion", "fit_gains", "line_centroids",
-    "load_cached", "load_calibration", "mask_images", "measurements", "normalise_offsets",
-    "normalise_offsets_phase",
-    "operator_from_calibration", "patch_spectra", "read_measurements", "refine_homography",
-    "save_calibration", "to_view_coordinates", "board_field", "unmask", "view_homographies", "view_masks",
-    "measure_leads", "with_leads",
+    "apply_gains", "apply_homography", "band_mean_positions", "band_positions", "board_field",
+    "build_calibration", "calibration_path", "check_design", "find_corners", "find_view_boxes",
+    "fit_dispersion", "fit_gains", "lead_columns", "line_centroids", "load_cached",
+    "load_calibration", "mask_images", "measure_leads", "measurements", "normalise_offsets",
+    "normalise_offsets_phase", "operator_from_calibration", "patch_spectra", "read_measurements",
+    "refine_homography", "save_calibration", "to_view_coordinates", "unmask", "view_homographies",
+    "view_masks", "with_leads",
 ]

@@ -423,9 +423,7 @@ def board_field(img: np.ndarray, valid: np.ndarray, board_h, pattern_size, squar
                                                                 0.5 * h))
     resid = shifts - np.stack(field(*points.T), axis=1)
     scatter = np.sqrt(np.sum(resid ** 2) / (resid.size - 2 * n_terms))
-    bend_only = field.coeffs.copy()
-    bend_only[:, :3] = 0.0
-    bend = np.stack(DisplacementField(bend_only, field.frame)(*points.T), axis=1)
+    bend = np.stack(field.bend()(*points.T), axis=1)
     bend = np.sqrt(np.mean((bend - bend.mean(axis=0)) ** 2))
     return field if bend >= min_snr * scatter else None
 

@@ -430,8 +430,6 @@ def _anchor_fields(homographies, fields, centre: int):
     :math:`H_k \leftarrow H_k (I - A)` for the other views (to first order in the fields, as they
     are applied).
     """
-    from recon.operators.warp import DisplacementField
-
     c0 = fields[centre]
     xc, yc, sx, sy = c0.frame
     # Terms in order 1, xi, eta, ...: A(x, y) = a + b (x - xc)/sx + c (y - yc)/sy.
@@ -446,10 +444,8 @@ def _anchor_fields(homographies, fields, centre: int):
         if k != centre:                 # the centre's map stays g + d_0(g)
             m = h @ i_minus_a
             hs[k] = m / m[2, 2]
-    rest = c0.coeffs.copy()
-    rest[:, :3] = 0.0
     out = list(fields)
-    out[centre] = DisplacementField(rest, c0.frame)
+    out[centre] = c0.bend()
     return hs, out
 
 

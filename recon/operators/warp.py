@@ -254,6 +254,12 @@ class DisplacementField:
         a = self._design(x, y)
         return a @ self.coeffs[0], a @ self.coeffs[1]
 
+    def bend(self) -> "DisplacementField":
+        """The field without its affine part (its terms of degree ≤ 1)."""
+        c = self.coeffs.copy()
+        c[:, :3] = 0.0          # 1, xi, eta (:meth:`terms`)
+        return DisplacementField(c, self.frame)
+
     def moved(self, dx: float) -> "DisplacementField":
         """The same field in coordinates whose x origin lies ``dx`` further left
         (:math:`x' = x + dx`)."""

@@ -5,15 +5,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from recon.calibration import (apply_homography, build_calibration, lead_columns,
-                               load_calibration, measure_leads, operator_from_calibration,
-                               save_calibration, with_leads)
+from calibrations import HV, PHI, WM, K, L, three_view_calibration as _cal
+from recon.calibration import (apply_homography, lead_columns, load_calibration, measure_leads,
+                               operator_from_calibration, save_calibration, with_leads)
 from recon.calibration.extent import led_view
 from recon.errors import InputError
 from recon.operators import CalibratedCassi, HomographyWarp
-
-K, L, HV, WM = 3, 4, 12, 40
-PHI = np.array([0.0, 2.0, 3.5, 5.0])
 
 
 def _masks(rng, starts):
@@ -23,15 +20,6 @@ def _masks(rng, starts):
         for l in range(L):
             c[k, l, :, :starts[k, l]] = 0.0
     return c
-
-
-def _cal(masks):
-    hb = np.stack([np.eye(3)] + [np.array([[-1, 0, WM - 1.0], [0, 1, 0.5], [0, 0, 1]])] * 2)
-    phi = np.stack([PHI] * K)
-    return build_calibration(
-        view_ids=(0, 1, 2), view_boxes=[(0, 40, HV, WM), (0, 0, HV, WM), (0, 80, HV, WM)],
-        box_homographies=hb, mask_images=masks, wavelengths=[450.0, 500.0, 550.0, 600.0],
-        dispersion=phi, checker_dispersion=phi[:, 2])
 
 
 # The centre's light begins at its offsets; view 1's 4 columns before (cut at the box's first

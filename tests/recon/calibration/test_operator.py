@@ -266,21 +266,19 @@ def test_view_fields_go_into_every_view_warp_in_view_coordinates(tmp_path):
     homography and field, a led view with its field moved by its lead; saved and loaded."""
     import dataclasses
 
+    from calibrations import (BOX_HOMOGRAPHIES, HV, PHI, WM, K, L,
+                              three_view_calibration)
     from recon.calibration import load_calibration, save_calibration
     from recon.calibration.extent import led_view
     from recon.operators import CalibratedCassi, DisplacementField, HomographyWarp
 
     rng = np.random.default_rng(9)
-    k, n_bands, hv, wm = 3, 4, 12, 40
-    phi = np.stack([np.array([0.0, 2.0, 3.5, 5.0])] * k)
+    k, n_bands, hv, wm = K, L, HV, WM
     masks = (rng.random((k, n_bands, hv, wm)) > 0.5).astype(np.float32)
-    hb = np.stack([np.eye(3)] + [np.array([[-1, 0, wm - 1.0], [0, 1, 0.5], [0, 0, 1]])] * 2)
     box = [DisplacementField(0.3 * rng.uniform(-1, 1, (2, 6)), (wm / 2, hv / 2, wm / 2, hv / 2))
            for _ in range(k)]
-    cal = build_calibration(
-        view_ids=(0, 1, 2), view_boxes=[(0, 40, hv, wm), (0, 0, hv, wm), (0, 80, hv, wm)],
-        box_homographies=hb, mask_images=masks, wavelengths=[450.0, 500.0, 550.0, 600.0],
-        dispersion=phi, checker_dispersion=phi[:, 2], box_fields=box)
+    cal = three_view_calibration(masks, box_fields=box)
+    phi = np.stack([PHI] * k)
     chk = phi[:, 2] - phi.min()
     xs, ys = rng.uniform(0, wm, 8), rng.uniform(0, hv, 8)
     for i in (1, 2):
@@ -293,7 +291,7 @@ def test_view_fields_go_into_every_view_warp_in_view_coordinates(tmp_path):
     # x0 = g + d0(g), view pixel H g + d(H g), before (from the box data) and after.
     from recon.calibration.geometry import apply_homography, to_view_coordinates
 
-    h_view = to_view_coordinates(hb, chk)
+    h_view = to_view_coordinates(BOX_HOMOGRAPHIES, chk)
     d0 = box[0].moved(-chk[0])
     g = np.stack([rng.uniform(5, 30, 8), rng.uniform(2, 10, 8)], axis=1)
     x0 = g + np.stack(d0(*g.T), axis=1)

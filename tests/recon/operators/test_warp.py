@@ -212,3 +212,16 @@ def test_homography_warp_with_fields_reads_where_the_fields_say():
     assert dot_test(WarpOperator(warp, 3), rng) < 1e-12
     with pytest.raises(InputError, match="DisplacementField"):
         HomographyWarp(h, in_shape, out_shape, view_field=np.zeros((2, 6)))
+
+
+def test_displacement_field_bend_drops_the_affine_part():
+    rng = np.random.default_rng(8)
+    f = _field(rng)
+    b = f.bend()
+    x, y = rng.uniform(0, 50, 20), rng.uniform(0, 40, 20)
+    # What is left is f minus its terms of degree <= 1 (an affine map of x, y).
+    xc, yc, sx, sy = f.frame
+    xi, eta = (x - xc) / sx, (y - yc) / sy
+    for k in range(2):
+        affine = f.coeffs[k, 0] + f.coeffs[k, 1] * xi + f.coeffs[k, 2] * eta
+        np.testing.assert_allclose(b(x, y)[k], f(x, y)[k] - affine, atol=1e-12)
