@@ -10,6 +10,7 @@ here too (:mod:`scenes`).
   :func:`design_for_views` (a design that traces the views a count needs) and
   :func:`design_of` (the design a frame's sidecar records).
 - **Frames**: :func:`render_scene` (one scene, its raw frame and its ground truth),
+  :func:`grid_on_scene` (where a calibration's grid lies on the scene, for the truth),
   :func:`scene_cube`, :func:`simulate_frame` and :func:`write_frame` (the steps of
   ``kaleidospec render``), :class:`FrameRenderer` (many frames of one design: a video) and
   :func:`animation` (a moving scene).
@@ -49,7 +50,7 @@ from sim.oracle import VIEW_ORDER, oracle_measurements, oracle_operator
 
 __all__ = [
     "VIEW_ORDER", "Design", "get_design", "parse_overrides", "design_for_views", "design_of",
-    "render_scene", "scene_cube", "simulate_frame", "write_frame", "ground_truth",
+    "render_scene", "scene_cube", "grid_on_scene", "simulate_frame", "write_frame", "ground_truth",
     "FrameRenderer", "animation", "render_captures", "comb_captures", "CHECKER_NM",
     "band_intervals", "band_mean_dispersion", "oracle_operator", "oracle_measurements",
     "measure_design", "apex_for_span", "cache_dir", "limit_threads", "release_transports",
@@ -220,6 +221,95 @@ def animation(scene, design, *, n_frames=None, fps: float = 10.0, subframes: int
     return get_animation(scene, scene_grid(design), design.wavelengths, n_frames=n_frames,
                          fps=fps, exposure_ms=design.exposure_ms, subframes=subframes,
                          **scene_params)
+
+
+# ------------------------------------------------------------------------------- ground truth
+#: Grid corners between which :func:`grid_on_scene` evaluates the optics exactly (a bicubic
+#: spline fills in the rest: the maps are low-order polynomials, so it is exact to < 10⁻⁴ px).
+GRID_MAP_STEP = 16
+
+
+def grid_on_scene(design, cal, view_ids=None) -> tuple[np.ndarray, np.ndarray]:
+    r"""Where the corners of a calibration's grid lie on the scene: ``(x, y)``, each
+    (H + 1, W + 1) float64, in the design grid's pixels (the scene spans :math:`[0, v]^2`, pixel
+    edges at integers), for the grid (H, W) of the shifted and smeared models.
+
+    Every calibrated view :math:`k` says where grid point :math:`g` is: at view pixel
+    :math:`q = H_k g + d_k(H_k g)` (its homography and displacement field), which band
+    :math:`l` puts on box column :math:`q_x + o_{k,l}` (the band's offset).  The scene point that
+    sensor point shows in band :math:`l` is read off the simulator's exact maps (the scene
+    frames' transport, :mod:`sim.maps`: mask-plane position averaged over the band's nodes, then
+    the relay to the diffuser); the view's answer is its mean over the bands, and the grid point
+    is the mean of the answers of ``view_ids`` (default: every calibrated view), the views a
+    reconstruction uses.  Where the views disagree (a calibration error) no registration
+    satisfies all of them and the reconstruction pays for it; a global placement the views agree
+    on is not an error of the instrument.
+
+    The design grid translated by the design's mean dispersion (:func:`kaleidospec.models.
+    grid_offset`) is where this grid would be if the lenses did not distort and the prism had
+    no anamorphic scale: on `paper` the centre view's answer parts from it by up to 1.1 px at
+    the view's edges.
+    """
+    from scipy.interpolate import RectBivariateSpline
+
+    from sim.transport import SEEDS, load_or_build
+
+    ids = list(cal.view_ids) if view_ids is None else [int(i) for i in view_ids]
+    missing = sorted(set(ids) - set(cal.view_ids))
+    if not ids or missing:
+        raise InputError(f"views {missing or ids} are not in the calibration {list(cal.view_ids)}")
+    tr = load_or_build(design, design.wavelengths, seed=SEEDS["scene"])
+    if tr.n_bands != cal.n_bands:
+        raise InputError(f"the design has {tr.n_bands} bands, the calibration {cal.n_bands}")
+    h, w = (int(n) for n in cal.cube_shape[:2])
+    gy = np.unique(np.r_[np.arange(0, h + 1, GRID_MAP_STEP), h]).astype(np.float64)
+    gx = np.unique(np.r_[np.arange(0, w + 1, GRID_MAP_STEP), w]).astype(np.float64)
+    ex, ey = np.meshgrid(gx, gy)
+    x = np.zeros_like(ex)
+    y = np.zeros_like(ex)
+    for view in ids:
+        vx, vy = _view_answer(tr, cal, cal.view_ids.index(view), ex, ey)
+        x += vx / len(ids)
+        y += vy / len(ids)
+    v = float(design.view_size_px)
+    ry, rx = np.arange(h + 1, dtype=np.float64), np.arange(w + 1, dtype=np.float64)
+    deg = {"kx": min(3, gy.size - 1), "ky": min(3, gx.size - 1)}    # a spline needs deg + 1 nodes
+    return (RectBivariateSpline(gy, gx, x * v, **deg)(ry, rx),
+            RectBivariateSpline(gy, gx, y * v, **deg)(ry, rx))
+
+
+def _view_answer(tr, cal, i, ex, ey):
+    """Where calibration view index ``i`` puts grid edge points ``(ex, ey)`` on the scene,
+    averaged over the bands: (x, y) in units of the scene's side (:func:`grid_on_scene`)."""
+    from recon.operators.warp import DisplacementField
+    from sim.maps import legendre_values
+    from sim.pixel_integral import node_weights
+
+    maps, k = tr.maps, tr.views.index(int(cal.view_ids[i]))
+    # Grid and view coordinates put pixel centres at integers, edges at half-integers.  A view's
+    # lead (recon.calibration.extent) moves its image and its offsets alike: it cancels here.
+    p = np.tensordot(np.asarray(cal.homographies[i], np.float64),
+                     np.stack([ex - 0.5, ey - 0.5, np.ones_like(ex)]), 1)
+    qx, qy = p[0] / p[2], p[1] / p[2]
+    if cal.view_fields is not None:
+        dx, dy = DisplacementField(cal.view_fields[i], cal.view_field_frames[i])(qx, qy)
+        qx, qy = qx + dx, qy + dy
+    rc, sr, cc, sc = maps.norm[k]
+    ax, bx, ay, by = (float(a) for a in maps.relay[k])
+    box_y, box_x = (float(a) for a in cal.view_boxes[i, :2])
+    pr = legendre_values(((box_y + qy + 0.5 - rc) / sr).ravel(), maps.degree)
+    x = np.zeros(qx.size)
+    y = np.zeros(qx.size)
+    for l in range(cal.n_bands):
+        nodes = list(tr.band_nodes[l])
+        wts = node_weights(len(nodes))
+        cx = np.tensordot(wts, maps.mask[k, nodes, 0], 1)
+        cy = np.tensordot(wts, maps.mask[k, nodes, 1], 1)
+        pc = legendre_values(((box_x + qx + float(cal.offsets[i, l]) + 0.5 - cc) / sc).ravel(),
+                             maps.degree)
+        x += ax + bx * np.einsum("na,ab,nb->n", pr, cx, pc)
+        y += ay + by * np.einsum("na,ab,nb->n", pr, cy, pc)
+    return (x / cal.n_bands).reshape(qx.shape), (y / cal.n_bands).reshape(qx.shape)
 
 
 # ------------------------------------------------------------------------------- bands

@@ -22,9 +22,13 @@ its operator in :func:`recon.calibration.operator_from_calibration`.
 Grids.  The shifted and smeared models reconstruct on the calibration's grid: the centre view's
 box, with column 0 where the shortest band puts the view's first column, and only the part of
 the view that the mask codes (the guard stripe's columns are never measured).
-:func:`truth_on_grid` moves a ground truth onto it (an exact area mean over cells translated by
-:func:`grid_offset`, from the design and the calibrated box and offsets).  The footprint model
-reconstructs on the comb target's texel grid, which is the scenes' grid: no translation.
+:func:`truth_on_grid` moves a ground truth onto it: exact area means (:func:`box_means`) over
+the cells where the calibrated views put the grid's pixels on the scene
+(:func:`kaleidospec.instrument.grid_on_scene`).  :func:`grid_offset` is the same grid taken for
+the design's grid translated by the design's dispersion (the lenses' distortion left out, up to
+1.1 px at the edges of `paper`'s centre view): good enough to find the ColorChecker's patches,
+not to score a reconstruction.  The footprint model reconstructs on the comb target's texel
+grid, which is the scenes' grid: no translation.
 """
 
 from __future__ import annotations
@@ -35,7 +39,7 @@ from recon.errors import InputError
 
 __all__ = ["MODELS", "DEFAULT_MODEL", "RUN_MODELS", "GAINS", "SMEAR_SAMPLES", "check_model",
            "holds", "model_of", "model_gains", "cube_grid", "grid_offset", "shifted_area_weights",
-           "truth_on_grid"]
+           "truth_on_grid", "box_means"]
 
 #: Every calibrated model a calibration can hold; the first (shifted) is in every calibration.
 MODELS = ("shifted", "smeared", "footprint")
@@ -144,30 +148,92 @@ def shifted_area_weights(n_in: int, n_out: int, offset: float, scale: float) -> 
     return w / scale
 
 
-def truth_on_grid(truth, design, cal, model: str | None = None) -> np.ndarray:
-    r"""The ground truth moved onto the grid of the calibrated ``model`` (:func:`cube_grid`),
-    (H, W, L) float32.
+def truth_on_grid(truth, design, cal, model: str | None = None, view_ids=None) -> np.ndarray:
+    r"""The ground truth moved onto the grid of the calibrated ``model`` (:func:`cube_grid`) as
+    the views ``view_ids`` (default: all the calibration's) see it, (H, W, L) float32.
 
     ``truth`` (Ht, Wt, L) covers the centre view's :math:`v \times v` square at any resolution
     (:func:`sim.diffuser.cube_region`): a built-in scene at its own, finer resolution
     (:func:`kaleidospec.instrument.scene_cube`), or its mean on the design's grid
-    (:func:`sim.frame.ground_truth`).  Grid pixel :math:`(y_v, x_v)` is the exact area mean of
-    the truth over the design-grid cell :math:`[y_v + o_y, y_v + 1 + o_y] \times [x_v + o_x,
-    x_v + 1 + o_x]` (:func:`grid_offset`; :func:`shifted_area_weights`, edge-padded).
+    (:func:`sim.frame.ground_truth`).  Every grid pixel is the exact area mean of the truth
+    (piecewise constant on its texels, edge-padded) over the part of the scene the pixel
+    covers:
 
-    Pass the scene at its own resolution wherever it exists.  From the :math:`v \times v` mean
-    this is a linear interpolation between neighbouring grid means, which has lost the detail
-    within a pixel and then smooths by the fractional offset: a truth that flatters a smooth
-    reconstruction (FISTA-TV, shifted model: by 0.05–0.35 dB on ``small``, 0.02–0.05 dB on
-    ``paper``).
+    - footprint model: its grid is the comb target's, the design's grid (:func:`grid_offset`
+      is zero);
+    - shifted and smeared models: every calibrated view says where a grid pixel lies on the
+      scene (its homography, displacement field and offsets, through the simulator's exact
+      optics: :func:`kaleidospec.instrument.grid_on_scene`), and the pixel's cell is the mean
+      of the answers of the views a reconstruction uses, the box through the midpoints of its
+      sides (the cells are squares to 10⁻³ px).  Before, the truth was the design grid
+      translated by :func:`grid_offset`, which is off by up to 1.1 px at the edges of the
+      `paper` centre view: it charged the models with the lenses' distortion (a placement
+      every view agrees on) as if it were a model error.  Where the views disagree, no
+      registration pleases them all: on `small`, without displacement fields, the views
+      mirrored along x put the grid 0.77 px (rms) away from where the centre puts it.
+
+    Pass the scene at its own resolution wherever it exists: the :math:`v \times v` mean has
+    lost the detail within a pixel (a truth that flatters a smooth reconstruction).
     """
     t = np.asarray(truth, dtype=np.float32)
     (h, w), n = cube_grid(cal, model), cal.n_bands
     if t.ndim != 3 or t.shape[2] != n:
         raise InputError(f"truth shape {t.shape} does not have the calibration's {n} bands")
     v = design.view_size_px
-    oy, ox = grid_offset(design, cal, model)
-    wy = shifted_area_weights(t.shape[0], h, oy, t.shape[0] / v).astype(np.float32)
-    wx = shifted_area_weights(t.shape[1], w, ox, t.shape[1] / v).astype(np.float32)
-    out = np.einsum("ij,jkl,mk->iml", wy, t, wx, optimize=True)
-    return np.ascontiguousarray(out, dtype=np.float32)
+    if model_of(cal, model) == "footprint":
+        wy = shifted_area_weights(t.shape[0], h, 0.0, t.shape[0] / v).astype(np.float32)
+        wx = shifted_area_weights(t.shape[1], w, 0.0, t.shape[1] / v).astype(np.float32)
+        out = np.einsum("ij,jkl,mk->iml", wy, t, wx, optimize=True)
+        return np.ascontiguousarray(out, dtype=np.float32)
+    from kaleidospec.instrument import grid_on_scene
+
+    x, y = grid_on_scene(design, cal, view_ids)
+    sx, sy = t.shape[1] / v, t.shape[0] / v
+    return box_means(t, 0.5 * (x[:-1, :-1] + x[1:, :-1]) * sx, 0.5 * (x[:-1, 1:] + x[1:, 1:]) * sx,
+                     0.5 * (y[:-1, :-1] + y[:-1, 1:]) * sy, 0.5 * (y[1:, :-1] + y[1:, 1:]) * sy)
+
+
+def box_means(image, x0, x1, y0, y1) -> np.ndarray:
+    r"""Exact means of a piecewise-constant image (H, W, L) over the boxes
+    :math:`[x_0, x_1] \times [y_0, y_1]` (texel units, texel :math:`(i, j)` covers
+    :math:`[j, j+1) \times [i, i+1)`; arrays of one shape S), (*S, L) float32.
+
+    The integral image :math:`I(x, y) = \int_0^y\!\int_0^x f` is bilinear inside every texel,
+    so bilinear interpolation of its values at the texel corners is exact, and a box's integral
+    is :math:`I(x_1, y_1) - I(x_0, y_1) - I(x_1, y_0) + I(x_0, y_0)`.  Beyond the image the edge
+    texels extend (edge padding).
+    """
+    f = np.asarray(image, dtype=np.float32)
+    hh, ww, n = f.shape
+    x0, x1, y0, y1 = (np.asarray(a, dtype=np.float64) for a in (x0, x1, y0, y1))
+    lo = min(float(x0.min()), float(x1.min()), float(y0.min()), float(y1.min()), 0.0)
+    hi = max(float(x1.max()) - ww, float(x0.max()) - ww, float(y1.max()) - hh,
+             float(y0.max()) - hh, 0.0)
+    pad = int(np.ceil(max(-lo, hi))) + 1
+    # A box narrower than 10⁻³ texel becomes one that wide around its middle (the texel's
+    # value): the integral image's differences over less would lose their digits.
+    width = np.maximum(np.abs(x1 - x0), 1e-3)
+    height = np.maximum(np.abs(y1 - y0), 1e-3)
+    xa = 0.5 * (x0 + x1 - width) + pad
+    ya = 0.5 * (y0 + y1 - height) + pad
+    corners = [(xa + width, ya + height, 1.0), (xa, ya + height, -1.0),
+               (xa + width, ya, -1.0), (xa, ya, 1.0)]
+    wp = ww + 2 * pad + 1
+    area = (width * height).ravel()
+    out = np.empty((area.size, n), dtype=np.float32)
+    for l in range(n):
+        sat = np.zeros((hh + 2 * pad + 1, wp))
+        sat[1:, 1:] = np.pad(f[:, :, l], pad, mode="edge").astype(np.float64).cumsum(0).cumsum(1)
+        flat = sat.ravel()
+        acc = np.zeros(area.size)
+        # The taps are recomputed per band: kept for all bands they would hold 16 index and
+        # weight arrays of the grid's size (0.2 GB on `paper`).
+        for cx, cy, sign in corners:
+            ix = np.floor(cx).astype(np.int64).ravel()
+            iy = np.floor(cy).astype(np.int64).ravel()
+            tx, ty = cx.ravel() - ix, cy.ravel() - iy
+            i = iy * wp + ix
+            acc += sign * ((1 - ty) * ((1 - tx) * flat[i] + tx * flat[i + 1])
+                           + ty * ((1 - tx) * flat[i + wp] + tx * flat[i + wp + 1]))
+        out[:, l] = acc / area
+    return out.reshape(x0.shape + (n,))

@@ -193,7 +193,7 @@ def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = DEFAULTS["
     if truth is not None:
         t = np.asarray(truth, dtype=np.float32)
         tg = t if t.shape == cube_grid(cal, model) + (cal.n_bands,) else \
-            truth_on_grid(t, design_of(metadata, design), cal, model)
+            truth_on_grid(t, design_of(metadata, design), cal, model, ids)
     cube, info = solve_views(calibrated_operator(cal, ids, model), g, len(ids), solver=solver,
                              iters=iters, tau=tau, x0=x0, truth=tg, wavelengths=cal.wavelengths,
                              progress=progress)
@@ -294,7 +294,8 @@ class Reconstructor:
         # Gains folded into the masks: the cube comes out in the scene's radiance units.
         op = calibrated_operator(cal, ids)
         return cls(op, lambda frame, meta: frame_measurements(frame, meta, cal, ids),
-                   to_grid=lambda t, meta: truth_on_grid(t, design_of(meta), cal),
+                   to_grid=lambda t, meta: truth_on_grid(t, design_of(meta), cal,
+                                                         view_ids=ids),
                    offset=lambda meta: grid_offset(design_of(meta), cal), kind="calibrated",
                    **kw)
 

@@ -88,7 +88,7 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
     from kaleidospec import evaluate, instrument, report
     from kaleidospec.calibrate import calibrate, is_cached
     from kaleidospec.models import cube_grid, model_gains, model_of, truth_on_grid
-    from kaleidospec.reconstruct import (check_oracle_solver, reconstruct_oracle,
+    from kaleidospec.reconstruct import (check_oracle_solver, first_views, reconstruct_oracle,
                                          reconstruct_views)
     from recon.calibration import check_design
     from recon.io.atomic import atomic_dir, check_output, output_parents
@@ -142,8 +142,12 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
     with output_parents(out_dir), atomic_dir(out_dir) as tmp:
         write_raw(tmp / "raw.exr", frame, meta)
         # From the scene itself, built again (seconds) rather than held through the captures:
-        # its mean on the design's grid has lost the detail within a pixel.
-        tg = truth_on_grid(instrument.scene_cube(scene, design)[0], design, cal, model)
+        # its mean on the design's grid has lost the detail within a pixel.  Each view count is
+        # scored on the grid as its views see it; truth.exr is the grid as all of them see it.
+        native = instrument.scene_cube(scene, design)[0]
+        truths = {n: truth_on_grid(native, design, cal, model, first_views(n)) for n in counts}
+        del native
+        tg = truths[max(counts)]
         write_cube(tmp / "truth.exr", tg, wl)
         rgb_truth, peak = srgb_image(tg, wl)
         write_png(tmp / "srgb_truth.png", rgb_truth)
@@ -164,8 +168,8 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
         try:
             for n in counts:
                 cube, info = reconstruct_views(frame, meta, cal, n, solver=solver, iters=iters,
-                                               tau=tau, truth=tg, design=design, model=model,
-                                               progress=progress)
+                                               tau=tau, truth=truths[n], design=design,
+                                               model=model, progress=progress)
                 bar.update()
                 cubes[n] = cube
                 write_cube(tmp / f"cube_{n}views.exr", cube, wl)

@@ -67,7 +67,7 @@ SWEEPS: dict[str, tuple[str, str, str]] = {
     "prism-apex": ("prism_apex_deg", "°", "prism apex angle"),
 }
 #: Bumped when what a point computes changes, so old stored results are not reused.
-MEASURE_VERSION = 3
+MEASURE_VERSION = 4
 
 
 @dataclass(frozen=True)

@@ -601,9 +601,11 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
     to_grid = None
     if operator == "calibrated":
         from kaleidospec.models import truth_on_grid
+        from kaleidospec.reconstruct import first_views
 
         cal = calibrate(d, cache_dir=cache_dir, progress=False)  # cached: a load
-        to_grid = lambda t: truth_on_grid(t, d, cal)  # noqa: E731
+        ids = first_views(views)
+        to_grid = lambda t: truth_on_grid(t, d, cal, view_ids=ids)  # noqa: E731
     video = write_video(out, n, anim.fps, anim.wavelengths, fmt=video_format,
                         truth_to_grid=to_grid)
     return {"frames": n, "render": render_stats, "reconstruct": rec_stats, "summary": summary,

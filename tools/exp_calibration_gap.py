@@ -112,9 +112,9 @@ def run(a) -> int:
         truth = ground_truth(d, cube)
         # The scene itself onto each model's grid (its mean on the design's grid has lost the
         # detail within a pixel).
-        on_grid = {m: truth_on_grid(cube, d, cal, m) for m in models}
         for n in counts:
             ids = first_views(n)
+            on_grid = {m: truth_on_grid(cube, d, cal, m, ids) for m in models}
             row = f"{name:<14}{n:>6}"
             errs = []
             for m in models:

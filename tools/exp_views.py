@@ -170,14 +170,14 @@ def run_scene(scene: str, design, cal, views, *, solver, iters, tau, seed, noise
     from kaleidospec.evaluate import colorchecker_patches, patch_delta_e2000
     from kaleidospec.instrument import ground_truth, oracle_operator, render_scene
     from kaleidospec.models import truth_on_grid
-    from kaleidospec.reconstruct import reconstruct_oracle, reconstruct_views
+    from kaleidospec.reconstruct import first_views, reconstruct_oracle, reconstruct_views
 
     t0 = time.perf_counter()
     frame, meta, native, wl = render_scene(scene, design, seed=seed, noise=noise, native=True)
     truth = ground_truth(design, native)
-    # The scene itself onto the model's grid (exact area means), once for every view count: its
-    # mean on the design's grid has lost the detail within a pixel.
-    on_grid = truth_on_grid(native, design, cal, model)
+    # The scene itself onto the model's grid (exact area means) as each view count's views see
+    # it: its mean on the design's grid has lost the detail within a pixel.
+    on_grid = {n: truth_on_grid(native, design, cal, model, first_views(n)) for n in views}
     del native
     # The chart's patches as a spectroradiometer would read them (mean spectra, CIEDE2000).
     patches = list(colorchecker_patches(design, cal, model).values()) \
@@ -186,7 +186,7 @@ def run_scene(scene: str, design, cal, views, *, solver, iters, tau, seed, noise
     rows, cubes = [], {}
     for n in views:
         cube, info = reconstruct_views(frame, meta, cal, n, solver=solver, iters=iters, tau=tau,
-                                       truth=on_grid, progress=progress, model=model)
+                                       truth=on_grid[n], progress=progress, model=model)
         # The shifted model's grid leaves out the guard stripe's columns: score against the
         # truth moved onto the model's grid (info["truth_grid"]), not the design's square grid.
         grid = info["truth_grid"]
