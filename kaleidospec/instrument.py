@@ -10,7 +10,8 @@ here too (:mod:`scenes`).
   :func:`design_for_views` (a design that traces the views a count needs) and
   :func:`design_of` (the design a frame's sidecar records).
 - **Frames**: :func:`render_scene` (one scene, its raw frame and its ground truth),
-  :func:`grid_on_scene` (where a calibration's grid lies on the scene, for the truth),
+  :func:`grid_on_scene` and :func:`view_answers` (where a calibration's grid lies on the scene,
+  for the truth, and how far its views agree on that),
   :func:`scene_cube`, :func:`simulate_frame` and :func:`write_frame` (the steps of
   ``kaleidospec render``), :class:`FrameRenderer` (many frames of one design: a video) and
   :func:`animation` (a moving scene).
@@ -50,8 +51,8 @@ from sim.oracle import VIEW_ORDER, oracle_measurements, oracle_operator
 
 __all__ = [
     "VIEW_ORDER", "Design", "get_design", "parse_overrides", "design_for_views", "design_of",
-    "render_scene", "scene_cube", "grid_on_scene", "simulate_frame", "write_frame", "ground_truth",
-    "FrameRenderer", "animation", "render_captures", "comb_captures", "CHECKER_NM",
+    "render_scene", "scene_cube", "grid_on_scene", "view_answers", "simulate_frame",
+    "write_frame", "ground_truth", "FrameRenderer", "animation", "render_captures", "comb_captures", "CHECKER_NM",
     "band_intervals", "band_mean_dispersion", "oracle_operator", "oracle_measurements",
     "measure_design", "apex_for_span", "cache_dir", "limit_threads", "release_transports",
 ]
@@ -252,6 +253,28 @@ def grid_on_scene(design, cal, view_ids=None) -> tuple[np.ndarray, np.ndarray]:
     """
     from scipy.interpolate import RectBivariateSpline
 
+    (gy, gx), answers = view_answers(design, cal, view_ids)
+    x = np.mean([a[0] for a in answers.values()], axis=0)
+    y = np.mean([a[1] for a in answers.values()], axis=0)
+    h, w = (int(n) for n in cal.cube_shape[:2])
+    ry, rx = np.arange(h + 1, dtype=np.float64), np.arange(w + 1, dtype=np.float64)
+    deg = {"kx": min(3, gy.size - 1), "ky": min(3, gx.size - 1)}    # a spline needs deg + 1 nodes
+    return (RectBivariateSpline(gy, gx, x, **deg)(ry, rx),
+            RectBivariateSpline(gy, gx, y, **deg)(ry, rx))
+
+
+def view_answers(design, cal, view_ids=None, step: int = GRID_MAP_STEP):
+    """Where each of the views ``view_ids`` (default: all the calibration's) puts the grid's
+    corners on the scene (:func:`grid_on_scene`), every ``step`` corners along each axis.
+
+    Returns
+    -------
+    (gy, gx) : 1-D float64 arrays
+        The grid-corner rows and columns evaluated (edge coordinates, the last corner included).
+    answers : dict
+        ``{view id: (x, y)}``, each (gy.size, gx.size) float64 in the design grid's pixels.
+        Where the views' answers differ, the calibration disagrees with itself.
+    """
     from sim.transport import SEEDS, load_or_build
 
     ids = list(cal.view_ids) if view_ids is None else [int(i) for i in view_ids]
@@ -262,20 +285,15 @@ def grid_on_scene(design, cal, view_ids=None) -> tuple[np.ndarray, np.ndarray]:
     if tr.n_bands != cal.n_bands:
         raise InputError(f"the design has {tr.n_bands} bands, the calibration {cal.n_bands}")
     h, w = (int(n) for n in cal.cube_shape[:2])
-    gy = np.unique(np.r_[np.arange(0, h + 1, GRID_MAP_STEP), h]).astype(np.float64)
-    gx = np.unique(np.r_[np.arange(0, w + 1, GRID_MAP_STEP), w]).astype(np.float64)
+    gy = np.unique(np.r_[np.arange(0, h + 1, int(step)), h]).astype(np.float64)
+    gx = np.unique(np.r_[np.arange(0, w + 1, int(step)), w]).astype(np.float64)
     ex, ey = np.meshgrid(gx, gy)
-    x = np.zeros_like(ex)
-    y = np.zeros_like(ex)
+    v = float(design.view_size_px)
+    answers = {}
     for view in ids:
         vx, vy = _view_answer(tr, cal, cal.view_ids.index(view), ex, ey)
-        x += vx / len(ids)
-        y += vy / len(ids)
-    v = float(design.view_size_px)
-    ry, rx = np.arange(h + 1, dtype=np.float64), np.arange(w + 1, dtype=np.float64)
-    deg = {"kx": min(3, gy.size - 1), "ky": min(3, gx.size - 1)}    # a spline needs deg + 1 nodes
-    return (RectBivariateSpline(gy, gx, x * v, **deg)(ry, rx),
-            RectBivariateSpline(gy, gx, y * v, **deg)(ry, rx))
+        answers[view] = (vx * v, vy * v)
+    return (gy, gx), answers
 
 
 def _view_answer(tr, cal, i, ex, ey):

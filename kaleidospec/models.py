@@ -170,7 +170,7 @@ def truth_on_grid(truth, design, cal, model: str | None = None, view_ids=None) -
       `paper` centre view: it charged the models with the lenses' distortion (a placement
       every view agrees on) as if it were a model error.  Where the views disagree, no
       registration pleases them all: on `small`, without displacement fields, the views
-      mirrored along x put the grid 0.77 px (rms) away from where the centre puts it.
+      mirrored along x put the grid 0.8 px (rms) away from where the centre puts it.
 
     Pass the scene at its own resolution wherever it exists: the :math:`v \times v` mean has
     lost the detail within a pixel (a truth that flatters a smooth reconstruction).

@@ -80,8 +80,9 @@ def test_grid_on_scene_is_where_the_centre_view_sees_the_grid(setup):
 
 
 def test_grid_on_scene_averages_the_views_answers(setup):
-    """Several views: the mean of each one's answer; views outside the calibration are refused."""
-    from kaleidospec.instrument import grid_on_scene
+    """Several views: the mean of each one's answer (:func:`view_answers` at its nodes); views
+    outside the calibration are refused."""
+    from kaleidospec.instrument import grid_on_scene, view_answers
     from recon.errors import InputError
 
     d, cal, *_ = setup
@@ -93,6 +94,12 @@ def test_grid_on_scene_averages_the_views_answers(setup):
     # The mirrored views do not put the grid where the centre does (no displacement fields on
     # `small`): the views' answers differ by a good part of a pixel.
     assert np.abs(each[1][0] - each[0][0]).max() > 0.3
+    # view_answers holds the same answers where it evaluates them (the spline's nodes).
+    (gy, gx), answers = view_answers(d, cal, ids)
+    iy, ix = gy.astype(int), gx.astype(int)
+    for v, e in zip(ids, each):
+        np.testing.assert_allclose(answers[v][0], e[0][np.ix_(iy, ix)], atol=1e-9)
+        np.testing.assert_allclose(answers[v][1], e[1][np.ix_(iy, ix)], atol=1e-9)
     with pytest.raises(InputError):
         grid_on_scene(d, cal, (42,))
 
