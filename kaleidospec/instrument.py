@@ -52,7 +52,8 @@ from sim.oracle import VIEW_ORDER, oracle_measurements, oracle_operator
 __all__ = [
     "VIEW_ORDER", "Design", "get_design", "parse_overrides", "design_for_views", "design_of",
     "render_scene", "scene_cube", "grid_on_scene", "view_answers", "simulate_frame",
-    "write_frame", "ground_truth", "FrameRenderer", "animation", "render_captures", "comb_captures", "CHECKER_NM",
+    "write_frame", "ground_truth", "FrameRenderer", "animation", "render_captures",
+    "comb_captures", "CHECKER_NM",
     "band_intervals", "band_mean_dispersion", "oracle_operator", "oracle_measurements",
     "measure_design", "apex_for_span", "cache_dir", "limit_threads", "release_transports",
 ]
@@ -246,10 +247,10 @@ def grid_on_scene(design, cal, view_ids=None) -> tuple[np.ndarray, np.ndarray]:
     satisfies all of them and the reconstruction pays for it; a global placement the views agree
     on is not an error of the instrument.
 
-    The design grid translated by the design's mean dispersion (:func:`kaleidospec.models.
-    grid_offset`) is where this grid would be if the lenses did not distort and the prism had
-    no anamorphic scale: on `paper` the centre view's answer parts from it by up to 1.1 px at
-    the view's edges.
+    The design grid translated by the design's mean dispersion
+    (:func:`kaleidospec.models.grid_offset`) is where this grid would be if the lenses did not
+    distort and the prism had no anamorphic scale: on `paper` the centre view's answer parts
+    from it by up to 1.1 px at the view's edges.
     """
     from scipy.interpolate import RectBivariateSpline
 
