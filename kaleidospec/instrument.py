@@ -278,10 +278,7 @@ def view_answers(design, cal, view_ids=None, step: int = GRID_MAP_STEP):
     """
     from sim.transport import SEEDS, load_or_build
 
-    ids = list(cal.view_ids) if view_ids is None else [int(i) for i in view_ids]
-    missing = sorted(set(ids) - set(cal.view_ids))
-    if not ids or missing:
-        raise InputError(f"views {missing or ids} are not in the calibration {list(cal.view_ids)}")
+    idx = cal.view_indices(view_ids)
     tr = load_or_build(design, design.wavelengths, seed=SEEDS["scene"])
     if tr.n_bands != cal.n_bands:
         raise InputError(f"the design has {tr.n_bands} bands, the calibration {cal.n_bands}")
@@ -291,16 +288,15 @@ def view_answers(design, cal, view_ids=None, step: int = GRID_MAP_STEP):
     ex, ey = np.meshgrid(gx, gy)
     v = float(design.view_size_px)
     answers = {}
-    for view in ids:
-        vx, vy = _view_answer(tr, cal, cal.view_ids.index(view), ex, ey)
-        answers[view] = (vx * v, vy * v)
+    for i in idx:
+        vx, vy = _view_answer(tr, cal, i, ex, ey)
+        answers[cal.view_ids[i]] = (vx * v, vy * v)
     return (gy, gx), answers
 
 
 def _view_answer(tr, cal, i, ex, ey):
     """Where calibration view index ``i`` puts grid edge points ``(ex, ey)`` on the scene,
     averaged over the bands: (x, y) in units of the scene's side (:func:`grid_on_scene`)."""
-    from recon.operators.warp import DisplacementField
     from sim.maps import legendre_values
     from sim.pixel_integral import node_weights
 
@@ -310,8 +306,9 @@ def _view_answer(tr, cal, i, ex, ey):
     p = np.tensordot(np.asarray(cal.homographies[i], np.float64),
                      np.stack([ex - 0.5, ey - 0.5, np.ones_like(ex)]), 1)
     qx, qy = p[0] / p[2], p[1] / p[2]
-    if cal.view_fields is not None:
-        dx, dy = DisplacementField(cal.view_fields[i], cal.view_field_frames[i])(qx, qy)
+    field = cal.field(i)
+    if field is not None:
+        dx, dy = field(qx, qy)
         qx, qy = qx + dx, qy + dy
     rc, sr, cc, sc = maps.norm[k]
     ax, bx, ay, by = (float(a) for a in maps.relay[k])

@@ -110,10 +110,10 @@ def run(a) -> int:
         frame, meta = simulate_frame(d, cube, wl, seed=a.seed)
         clean, cmeta = simulate_frame(d, cube, wl, noise=False, radiance_scale=meta["radiance_scale"])
         truth = ground_truth(d, cube)
-        # The scene itself onto each model's grid (its mean on the design's grid has lost the
-        # detail within a pixel).
         for n in counts:
             ids = first_views(n)
+            # The scene itself onto each model's grid as these views see it (its mean on the
+            # design's grid has lost the detail within a pixel).
             on_grid = {m: truth_on_grid(cube, d, cal, m, ids) for m in models}
             row = f"{name:<14}{n:>6}"
             errs = []

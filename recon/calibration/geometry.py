@@ -415,7 +415,7 @@ def board_field(img: np.ndarray, valid: np.ndarray, board_h, pattern_size, squar
                 continue
             points.append(quad.mean(axis=0))
             shifts.append((-float(warp[0, 2]), -float(warp[1, 2])))
-    n_terms = (degree + 1) * (degree + 2) // 2
+    n_terms = len(DisplacementField.terms(degree))
     if len(points) < 2 * n_terms:
         return None
     points, shifts = np.array(points), np.array(shifts)

@@ -37,19 +37,14 @@ from __future__ import annotations
 import numpy as np
 
 from recon.calibration.store import Calibration
-from recon.calibration.views import check_view_ids, crop
+from recon.calibration.views import crop
 from recon.errors import InputError
 
 
 def _select(cal: Calibration, view_ids) -> list[int]:
     if not isinstance(cal, Calibration):
         raise InputError(f"expected a Calibration, got {type(cal).__name__}")
-    ids = cal.view_ids if view_ids is None else check_view_ids(view_ids)
-    missing = [v for v in ids if v not in cal.view_ids]
-    if missing:
-        raise InputError(f"views {missing} are not in the calibration (it has "
-                         f"{list(cal.view_ids)})")
-    return [cal.view_ids.index(v) for v in ids]
+    return cal.view_indices(view_ids)
 
 
 #: The calibrated forward models: "footprint" (the system matrix measured with comb targets),

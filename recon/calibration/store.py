@@ -222,6 +222,22 @@ class Calibration:
         for i in range(k):
             DisplacementField(c[i], self.view_field_frames[i])     # validates
 
+    def view_indices(self, view_ids=None) -> list[int]:
+        """The indices in :attr:`view_ids` of the views ``view_ids`` (default: all of them).
+
+        Raises
+        ------
+        InputError
+            Invalid ids (:func:`~recon.calibration.views.check_view_ids`) or views the
+            calibration does not hold.
+        """
+        ids = self.view_ids if view_ids is None else check_view_ids(view_ids)
+        missing = [v for v in ids if v not in self.view_ids]
+        if missing:
+            raise InputError(f"views {missing} are not in the calibration (it has "
+                             f"{list(self.view_ids)})")
+        return [self.view_ids.index(v) for v in ids]
+
     def field(self, i: int):
         """View ``i``'s (index in ``view_ids``) :class:`~recon.operators.warp.DisplacementField`
         in view coordinates, or None when the calibration holds none."""

@@ -213,7 +213,7 @@ class DisplacementField:
         if c.ndim != 2 or c.shape[0] != 2 or not np.all(np.isfinite(c)):
             raise InputError(f"coeffs must be a finite (2, T) array, got shape {c.shape}")
         deg = int(round((np.sqrt(8 * c.shape[1] + 1) - 3) / 2))
-        if (deg + 1) * (deg + 2) // 2 != c.shape[1]:
+        if len(self.terms(deg)) != c.shape[1]:
             raise InputError(f"{c.shape[1]} coefficients are no full 2-D polynomial")
         if f.shape != (4,) or not np.all(np.isfinite(f)) or f[2] <= 0 or f[3] <= 0:
             raise InputError(f"frame must be finite (x_c, y_c, s_x > 0, s_y > 0), got {frame!r}")
@@ -230,7 +230,7 @@ class DisplacementField:
         ``frame`` defaults to the points' centre and half-extent."""
         p = np.asarray(points, dtype=np.float64).reshape(-1, 2)
         d = np.asarray(shifts, dtype=np.float64).reshape(-1, 2)
-        n_terms = (deg + 1) * (deg + 2) // 2
+        n_terms = len(cls.terms(deg))
         if p.shape != d.shape or p.shape[0] < n_terms or not np.all(np.isfinite(p) & np.isfinite(d)):
             raise InputError(f"need at least {n_terms} finite points and shifts of the same "
                              f"shape, got {p.shape} and {d.shape}")
