@@ -213,7 +213,8 @@ def calibrate_from_captures(design, *, models=None, repeats: int = 4, progress: 
     if unknown:
         raise InputError(f"unknown calibrated model(s) {unknown}; known: {', '.join(MODELS)}")
     extra = [name for name in STEPS if name in wanted]
-    if captures is None:
+    owned = captures is None
+    if owned:
         # No capture is rendered after these but the comb captures: without them the
         # captures' transport is not needed again in this process.
         keep = "footprint" in extra
@@ -233,6 +234,10 @@ def calibrate_from_captures(design, *, models=None, repeats: int = 4, progress: 
         boxes = find_view_boxes(caps.white, ids, margin_x=BOX_MARGIN_X)
         bar.update()
         cen = line_centroids(caps.line, boxes)
+        if owned:
+            # Nothing reads the line frames after their centroids: 26 full frames (0.9 GB on
+            # `paper`) go before the mask images and the checkerboard raise the peak.
+            caps.line = None
         fit = fit_dispersion(wl, cen, ref_nm=CHECKER_NM, degree=min(3, wl.size - 1))
         bar.update()
         radii = airy_radius_px(wl, design.imaging_f_number, design.sensor_pixel_um)
