@@ -23,9 +23,14 @@ issue's targets on the measured numbers and says which hold:
   calibration capture shows: the gains come from the flat field);
 * on ``paper``, every view count above the paper's Fig. 7 in its protocol.
 
+With ``--history`` it also records the global PSNR after every iteration (and the oracle's, with
+``--oracle``), prints it at 25, 50, 100, 150, … iterations and draws it: whether ``--iters`` is
+enough for the solver to converge (on ``paper`` 100 iterations are not).
+
 Outputs in ``--out`` (written atomically): ``exp_views.json`` (every number and the settings),
-``exp_views.png`` (PSNR against views, both protocols, with the paper's curve) and
-``exp_views_srgb.png`` (the truth and each reconstruction as sRGB, per scene).
+``exp_views.png`` (PSNR against views, both protocols, with the paper's curve),
+``exp_views_srgb.png`` (the truth and each reconstruction as sRGB, per scene) and, with
+``--history``, ``exp_views_history.png`` (PSNR against iterations).
 
 Usage::
 
@@ -35,6 +40,7 @@ Usage::
     python3 tools/exp_views.py --scenes natural,my_cube.exr --iters 50 --out out/exp_views
     python3 tools/exp_views.py --design paper --oracle --oracle-views 5
     python3 tools/exp_views.py --design paper --views 1,2,3,5 [--no-leads] [--no-fields]
+    python3 tools/exp_views.py --design paper --views 5 --scenes natural --iters 300 --history
 
 ``--design paper`` simulates the paper's full 3376×2704 sensor and 26 bands (minutes of
 transport and calibration; the exact operator takes 10–20 minutes a reconstruction on 2
@@ -65,6 +71,8 @@ MONOTONE_SLACK_DB = 0.1
 ORACLE_GAP_DB = 1.0
 #: Mean CIEDE2000 of the ColorChecker's patch spectra with 5 views.
 PATCH_DELTA_E = 2.0
+#: Iterations after which ``--history`` prints the PSNR (then every 100).
+HISTORY_AT = (25, 50, 100, 150, 200, 250, 300)
 
 
 # ---------------------------------------------------------------------------- shared helpers
@@ -159,14 +167,15 @@ def matplotlib_agg():
 
 # ---------------------------------------------------------------------------- the experiment
 def run_scene(scene: str, design, cal, views, *, solver, iters, tau, seed, noise, progress,
-              oracle=False, retrace=None, model=None):
+              oracle=False, retrace=None, model=None, history=False):
     """Render ``scene`` once and reconstruct it from each view count; returns (rows, images).
 
     With ``oracle`` (True, or a set of view counts) those view counts are also reconstructed
     from the same frame with the converged exact operator
     (:func:`kaleidospec.reconstruct.reconstruct_oracle`, traced with its own seed), on the
     design's grid.  With ``retrace`` (a seed) also with the exact operator traced with that
-    seed."""
+    seed.  With ``history`` every row keeps the PSNR after each iteration (``psnr_history``,
+    the oracle's too)."""
     from kaleidospec.evaluate import colorchecker_patches, patch_delta_e2000
     from kaleidospec.instrument import ground_truth, oracle_operator, render_scene
     from kaleidospec.models import truth_on_grid
@@ -194,11 +203,17 @@ def run_scene(scene: str, design, cal, views, *, solver, iters, tau, seed, noise
                "tau": finite(info.get("tau")), "iters": int(info.get("iters", iters))}
         if patches:
             row["delta_e2000_patches"] = patch_delta_e2000(cube, grid, patches, wl)
+        if history:
+            row["psnr_history"] = [float(v) for v in info["psnr_history"]]
         if oracle is True or (oracle and n in oracle):
+            # The truth goes in only for the history: it costs a PSNR every iteration.
             ocube, oinfo = reconstruct_oracle(frame, meta, design, n, solver=solver,
-                                              iters=iters, tau=tau, progress=progress)
+                                              iters=iters, tau=tau, progress=progress,
+                                              truth=truth if history else None)
             row["oracle"] = {**metrics_of(ocube, truth, wl),
                              "seconds": float(oinfo.get("seconds", 0.0))}
+            if history:
+                row["oracle"]["psnr_history"] = [float(v) for v in oinfo["psnr_history"]]
         if retrace is not None:
             op = oracle_operator(design, n, seed=retrace)
             rcube, rinfo = reconstruct_oracle(frame, meta, design, n, solver=solver,
@@ -215,8 +230,45 @@ def run_scene(scene: str, design, cal, views, *, solver, iters, tau, seed, noise
         print(f"  {scene_label(scene)}: {n} view(s)  PSNR {fmt(row['psnr'])} dB  "
               f"(paper protocol {fmt(row['psnr_bandwise'])}){extra}  {row['seconds']:.1f} s",
               flush=True)
+        if history:
+            print_history("calibrated", row["psnr_history"])
+            if "oracle" in row:
+                print_history("oracle", row["oracle"]["psnr_history"])
     return {"render_seconds": render_s, "rows": rows, "cube_shape": list(grid.shape)}, \
         (grid, wl, cubes)
+
+
+def history_points(n_iters: int) -> list[int]:
+    """The iterations ``--history`` reports: :data:`HISTORY_AT`, every 100 beyond, the last."""
+    at = [i for i in HISTORY_AT if i < n_iters]
+    at += list(range(HISTORY_AT[-1] + 100, n_iters, 100))
+    return at + [n_iters] if n_iters > 0 else []
+
+
+def print_history(label: str, hist) -> None:
+    """One line: the PSNR after each of :func:`history_points`."""
+    cells = "  ".join(f"{i}: {fmt(hist[i - 1])}" for i in history_points(len(hist)))
+    print(f"      {label:<10s} PSNR after  {cells}", flush=True)
+
+
+def plot_history(results: dict, path: Path, title: str) -> None:
+    """Global PSNR against iterations, every scene and view count (oracle dashed)."""
+    plt = matplotlib_agg()
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    for lab, res in results.items():
+        for row in res["rows"]:
+            line, = ax.plot(np.arange(1, len(row["psnr_history"]) + 1), row["psnr_history"],
+                            label=f"{lab}, {row['views']} view(s)")
+            if "oracle" in row:
+                h = row["oracle"]["psnr_history"]
+                ax.plot(np.arange(1, len(h) + 1), h, "--", color=line.get_color(),
+                        label=f"{lab}, {row['views']} view(s), exact operator")
+    ax.set_xlabel("iteration")
+    ax.set_ylabel("global PSNR (dB)")
+    ax.set_title(title, fontsize=9)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    save_figure(fig, path)
 
 
 def check_targets(results: dict, views, design: str = "small") -> dict:
@@ -384,6 +436,9 @@ def main(argv=None) -> int:
     ap.add_argument("--no-fields", action="store_true",
                     help="shifted model: homographies only, without the views' displacement "
                          "fields (recon.calibration.board_field; for comparison)")
+    ap.add_argument("--history", action="store_true",
+                    help="record the PSNR after every iteration (the oracle's too), print it at "
+                         "25, 50, 100, 150, ... iterations and draw exp_views_history.png")
     ap.add_argument("--progress", action="store_true")
     a = ap.parse_args(argv)
 
@@ -440,7 +495,8 @@ def main(argv=None) -> int:
         lab = scene_label(scene)
         res, imgs = run_scene(scene, design, cal, views, solver=a.solver, iters=a.iters,
                               tau=a.tau, seed=a.seed, noise=not a.no_noise, progress=a.progress,
-                              oracle=oracle, retrace=a.retrace, model=a.model)
+                              oracle=oracle, retrace=a.retrace, model=a.model,
+                              history=a.history)
         results[lab], images[lab] = res, imgs
 
     print_table(results, views)
@@ -453,6 +509,8 @@ def main(argv=None) -> int:
              f"{a.solver} {a.iters} it")
     plot_psnr(results, views, a.out / "exp_views.png", title)
     plot_srgb(images, views, a.out / "exp_views_srgb.png", results)
+    if a.history:
+        plot_history(results, a.out / "exp_views_history.png", title)
     write_json(a.out / "exp_views.json", {
         "experiment": "paper Fig. 7: PSNR against the number of views",
         "paper_fig7_psnr_db": PAPER_FIG7,
@@ -463,7 +521,8 @@ def main(argv=None) -> int:
         "scenes": results, "targets": targets,
     })
     print(f"\nwrote {a.out / 'exp_views.json'}, {a.out / 'exp_views.png'}, "
-          f"{a.out / 'exp_views_srgb.png'}")
+          f"{a.out / 'exp_views_srgb.png'}"
+          + (f", {a.out / 'exp_views_history.png'}" if a.history else ""))
     return 0
 
 
