@@ -33,6 +33,15 @@ from recon.errors import InputError
 #: First zero of J1: the Airy pattern (2 J1(x)/x)^2 vanishes first at x = 3.8317.
 _AIRY_ZERO = 3.831705970207512
 
+#: The mask images' deconvolutions (:func:`white_views`).
+DECONVOLUTIONS = ("wiener", "richardson-lucy")
+
+#: :math:`\lambda` of :func:`wiener_deconvolve` on crops scaled to a unit maximum.  The mask
+#: images' own error is least near 10⁻³ on ``paper`` (4 averaged captures per band), but a
+#: reconstruction prefers them smoother: the capture noise the filter lets through is what
+#: costs most there (see ``docs/figures.md``, "The mask images' deconvolution").
+WIENER_BALANCE = 1e-2
+
 
 def airy_radius_px(wavelength_nm, f_number: float, pixel_um: float) -> np.ndarray:
     r"""Airy first-zero radius in pixels, :math:`R = 1.22\, \lambda N / p`.
@@ -107,7 +116,7 @@ def white_levels(views: np.ndarray, open_fraction: float = 0.5,
 
 def mask_images(white_captures, view_boxes, dark=None, airy_radius=None, rl_iterations: int = 30,
                 percentile: float = 99.0, progress: bool = False, deconvolution: str = "wiener",
-                balance: float | None = None) -> np.ndarray:
+                balance: float = WIENER_BALANCE) -> np.ndarray:
     r"""Every view's mask image per band, normalised to [0, 1].
 
     Parameters
@@ -131,8 +140,8 @@ def mask_images(white_captures, view_boxes, dark=None, airy_radius=None, rl_iter
         A progress bar over the deconvolved crops.
     deconvolution : {"wiener", "richardson-lucy"}
         :func:`wiener_deconvolve` or :func:`deconvolve` (module notes).
-    balance : float, optional
-        The Wiener filter's :math:`\lambda` (:data:`WIENER_BALANCE` if None).
+    balance : float
+        The Wiener filter's :math:`\lambda` (:data:`WIENER_BALANCE`).
 
     Returns
     -------
@@ -156,7 +165,7 @@ def mask_images(white_captures, view_boxes, dark=None, airy_radius=None, rl_iter
 def view_masks(white_captures, view_boxes, tap_start, tap_weights, view_width: int, *,
                dark=None, airy_radius=None, rl_iterations: int = 30, percentile: float = 99.0,
                rounds: int = 3, iterations: int = 100, deconvolution: str = "wiener",
-               balance: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+               balance: float = WIENER_BALANCE) -> tuple[np.ndarray, np.ndarray]:
     r"""Every view's mask :math:`M_k` in view coordinates, jointly from all per-band whites.
 
     Under the uniform white of band :math:`l` the box of view :math:`k` records
@@ -254,7 +263,7 @@ def view_masks(white_captures, view_boxes, tap_start, tap_weights, view_width: i
 
 def white_views(white_captures, view_boxes, dark=None, airy_radius=None,
                 rl_iterations: int = 30, progress: bool = False,
-                deconvolution: str = "wiener", balance: float | None = None) -> np.ndarray:
+                deconvolution: str = "wiener", balance: float = WIENER_BALANCE) -> np.ndarray:
     """(K, L, h, w) float32 non-negative view crops of the per-band whites
     (:func:`view_stack`), deconvolved in place when ``airy_radius`` is given: with
     ``deconvolution`` ``"wiener"`` (:func:`wiener_deconvolve`, ``balance``) or
@@ -270,8 +279,7 @@ def white_views(white_captures, view_boxes, dark=None, airy_radius=None,
         if not np.all(radii > 0):
             raise InputError(f"Airy radii must be positive, got {radii}")
         if deconvolution == "wiener":
-            views = wiener_deconvolve(views, radii, WIENER_BALANCE if balance is None
-                                      else balance, out=views, progress=progress)
+            views = wiener_deconvolve(views, radii, balance, out=views, progress=progress)
         else:
             views = deconvolve(views, radii, rl_iterations, out=views, progress=progress)
         # The filter rings a little below zero next to chrome; no light is negative.
@@ -291,16 +299,6 @@ def _box_lsq(n: np.ndarray, b: np.ndarray, upper: float, iterations: int) -> np.
         y = m_new + ((t - 1.0) / t_new) * (m_new - m)
         m, t = m_new, t_new
     return m
-
-
-#: The mask images' deconvolutions (:func:`white_views`).
-DECONVOLUTIONS = ("wiener", "richardson-lucy")
-
-#: :math:`\lambda` of :func:`wiener_deconvolve` on crops scaled to a unit maximum.  The mask
-#: images' own error is least near 10⁻³ on ``paper`` (4 averaged captures per band), but a
-#: reconstruction prefers them smoother: the capture noise the filter lets through is what
-#: costs most there (see ``docs/figures.md``, "The mask images' deconvolution").
-WIENER_BALANCE = 1e-2
 
 
 def wiener_deconvolve(views: np.ndarray, radii: np.ndarray, balance: float = WIENER_BALANCE,
