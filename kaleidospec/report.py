@@ -75,14 +75,16 @@ def summary_lines(result) -> list[str]:
     """The human summary ``kaleidospec run`` prints."""
     lines = [f"scene {result['scene']}, design {result['design_hash']}, cube "
              f"{'x'.join(str(x) for x in result['cube_shape'])}, {result.get('model', 'shifted')}"
-             f" model, {result['solver']} x"
-             f"{result['iters']}, tau " + " / ".join(
+             f" model, {result['solver']} "
+             + (f"until a relative change < {result['tol']:g} (at most {result['iters']} "
+                f"iterations)" if result.get("tol") else f"x{result['iters']}")
+             + ", tau " + " / ".join(
                  f"{e['tau']:g}" for e in result["views"].values() if e.get("tau") is not None),
              f"calibration: {'cached' if result['calibration']['cached'] else 'rendered'} "
              f"({result['calibration']['seconds']:.1f} s)"]
     # dE00: per pixel of the sRGB rendering; dE00p: per ColorChecker patch (mean spectra).
     head = (f"{'views':>5} {'PSNR':>7} {'PSNRb':>7} {'SSIM':>6} {'SAM':>6} {'dE00':>6} "
-            f"{'dE00p':>6} {'s':>6} {'oracle':>7}")
+            f"{'dE00p':>6} {'it':>4} {'s':>6} {'oracle':>7}")
     lines += [head, "-" * len(head)]
     for n, e in result["views"].items():
         o = result["oracle"].get(n, {}).get("psnr")
@@ -92,7 +94,7 @@ def summary_lines(result) -> list[str]:
         lines.append(f"{n:>5} {f(e['psnr'], '7.2f')} {f(e['psnr_bandwise'], '7.2f')} "
                      f"{f(e['ssim'], '6.3f')} {f(e['sam_deg'], '6.2f')} "
                      f"{f(e['delta_e2000'], '6.2f')} {f(e.get('delta_e2000_patches'), '6.2f')} "
-                     f"{f(e['seconds'], '6.1f')} {f(o, '7.2f')}")
+                     f"{e.get('iters') or 0:>4d} {f(e['seconds'], '6.1f')} {f(o, '7.2f')}")
     t = result.get("targets", {})
     bits = []
     if t.get("psnr_rises_with_views") is not None:

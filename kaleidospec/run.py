@@ -43,9 +43,9 @@ def parse_views(spec) -> tuple[int, ...]:
 
 
 def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS["solver"],
-        iters: int = DEFAULTS["iters"], tau=None, seed: int = 0, progress: bool = True,
-        cache_dir=None, oracle: bool = True, figures: bool = True, raw=None, widen: bool = True,
-        log=None, model: str | None = None) -> dict:
+        iters: int = DEFAULTS["iters"], tol=DEFAULTS["tol"], tau=None, seed: int = 0,
+        progress: bool = True, cache_dir=None, oracle: bool = True, figures: bool = True,
+        raw=None, widen: bool = True, log=None, model: str | None = None) -> dict:
     """Render ``scene``, calibrate (cached), reconstruct for every view count, write a report.
 
     Everything is written into a fresh temporary folder beside ``out_dir`` that replaces
@@ -62,8 +62,10 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
     out_dir : path
     views : sequence of int
         View counts (1..9).
-    solver, iters, tau, seed
-        Reconstruction settings and the sensor-noise seed.
+    solver, iters, tol, tau, seed
+        Reconstruction settings (:func:`kaleidospec.reconstruct.solve_views`: at most ``iters``
+        iterations, fewer once the cube's relative change falls below ``tol``) and the
+        sensor-noise seed.
     oracle : bool
         Also reconstruct with the exact operator (for the "within 1 dB" comparison).
     figures : bool
@@ -154,7 +156,7 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
         result = {
             "scene": str(scene), "design": design.to_dict(), "design_hash": design.hash,
             "wavelengths_nm": [float(x) for x in wl], "solver": solver, "iters": int(iters),
-            "tau": tau, "seed": int(seed), "model": model,
+            "tol": tol, "tau": tau, "seed": int(seed), "model": model,
             "cube_shape": list(cube_grid(cal, model)) + [cal.n_bands],
             "calibration": {"cached": cached, "seconds": cal_seconds,
                             "view_ids": list(cal.view_ids),
@@ -168,7 +170,7 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
         try:
             for n in counts:
                 cube, info = reconstruct_views(frame, meta, cal, n, solver=solver, iters=iters,
-                                               tau=tau, truth=truths[n], design=design,
+                                               tol=tol, tau=tau, truth=truths[n], design=design,
                                                model=model, progress=progress)
                 bar.update()
                 cubes[n] = cube
@@ -180,8 +182,8 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
                         cube, info["truth_grid"], list(patches.values()), wl)
                 if oracle:
                     ocube, oinfo = reconstruct_oracle(frame, meta, design, n, solver=solver,
-                                                      iters=iters, tau=tau, truth=truth,
-                                                      progress=progress)
+                                                      iters=iters, tol=tol, tau=tau,
+                                                      truth=truth, progress=progress)
                     bar.update()
                     result["oracle"][str(n)] = evaluate.scores(oinfo, n)
         finally:

@@ -85,8 +85,9 @@ class SweepSettings:
         Scene reconstructed at each point (built-in name or cube file).
     n_views : int
         Views used for the reconstruction (1..9, order centre, left, right, top, bottom, corners).
-    solver, iters, tau, seed
-        Reconstruction settings and the noise seed.
+    solver, iters, tol, tau, seed
+        Reconstruction settings (at most ``iters`` iterations, fewer once the relative change
+        falls below ``tol``) and the noise seed.
     spp : int
         Samples per pixel of the measurement renders.
     reconstruct : bool
@@ -100,6 +101,7 @@ class SweepSettings:
     n_views: int = 5
     solver: str = DEFAULTS["solver"]
     iters: int = DEFAULTS["iters"]
+    tol: float | None = DEFAULTS["tol"]
     tau: float | None = None
     seed: int = 0
     spp: int = 8
@@ -142,6 +144,7 @@ class SweepSettings:
         blob = json.dumps({
             "v": MEASURE_VERSION, "scene": str(self.scene), "n_views": int(self.n_views),
             "solver": self.solver, "iters": int(self.iters),
+            "tol": None if self.tol is None else float(self.tol),
             "tau": None if self.tau is None else float(self.tau), "seed": int(self.seed),
             "spp": int(self.spp), "reconstruct": bool(self.reconstruct),
         }, sort_keys=True)
@@ -150,8 +153,9 @@ class SweepSettings:
     def to_dict(self) -> dict:
         return {"kind": self.kind, "design": self.design, "overrides": dict(self.overrides),
                 "scene": str(self.scene), "n_views": int(self.n_views), "solver": self.solver,
-                "iters": int(self.iters), "tau": self.tau, "seed": int(self.seed),
-                "spp": int(self.spp), "reconstruct": bool(self.reconstruct)}
+                "iters": int(self.iters), "tol": self.tol, "tau": self.tau,
+                "seed": int(self.seed), "spp": int(self.spp),
+                "reconstruct": bool(self.reconstruct)}
 
 
 def sweep_values(start: float, stop: float, step: float) -> np.ndarray:
@@ -263,8 +267,8 @@ def _reconstruct(design, s: dict) -> dict:
     # The scene itself (not its mean on the design's grid) goes onto the reconstruction grid.
     frame, meta, scene, _ = render_scene(s["scene"], design, seed=int(s["seed"]), native=True)
     cube, info = reconstruct_views(frame, meta, cal, int(s["n_views"]), solver=s["solver"],
-                                   iters=int(s["iters"]), tau=s["tau"], truth=scene,
-                                   design=design)
+                                   iters=int(s["iters"]), tol=s["tol"], tau=s["tau"],
+                                   truth=scene, design=design)
     tg = info["truth_grid"]
     return {"psnr_db": float(psnr(cube, tg)), "sam_deg": float(sam(cube, tg)),
             "calibrate_seconds": t_cal, "seconds": time.perf_counter() - t0,

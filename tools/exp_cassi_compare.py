@@ -237,7 +237,8 @@ def main(argv=None) -> int:
 
     # kaleidospec's defaults were chosen from measurements on the calibrated path (README).
     ap.add_argument("--solver", default=DEFAULTS["solver"])
-    ap.add_argument("--iters", type=int, default=DEFAULTS["iters"])
+    ap.add_argument("--iters", type=int, default=DEFAULTS["iters"],
+                    help="most iterations (each solve stops at the default relative change)")
     ap.add_argument("--tau", type=float, default=None)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-noise", action="store_true")
@@ -271,7 +272,8 @@ def main(argv=None) -> int:
 
     print(f"design {a.design} {' '.join(a.overrides)}: kaleidoscope {design.hash} "
           f"({design.view_size_px} px views), traditional {design_t.hash} "
-          f"({design_t.view_size_px} px), {design.n_bands} bands; {a.solver}, {a.iters} it",
+          f"({design_t.view_size_px} px), {design.n_bands} bands; {a.solver}, until a relative "
+          f"change < {DEFAULTS['tol']:g} (at most {a.iters} it)",
           flush=True)
     t0 = time.perf_counter()
     if a.operator == "calibrated":
@@ -302,7 +304,8 @@ def main(argv=None) -> int:
                 "(a), (b), (d') are rendered and calibrated.",
         "configs": CONFIGS, "design": a.design, "overrides": a.overrides,
         "design_hash": design.hash, "traditional_design_hash": design_t.hash,
-        "solver": a.solver, "iters": a.iters, "tau": a.tau, "seed": a.seed,
+        "solver": a.solver, "iters": a.iters, "tol": DEFAULTS["tol"], "tau": a.tau,
+        "seed": a.seed,
         "noise": not a.no_noise, "operator_for_rendered": a.operator, "scenes": results,
     })
     print(f"\nwrote {a.out / 'exp_cassi_compare.json'}, {a.out / 'exp_cassi_compare.png'}")

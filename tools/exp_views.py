@@ -167,7 +167,7 @@ def matplotlib_agg():
 
 # ---------------------------------------------------------------------------- the experiment
 def run_scene(scene: str, design, cal, views, *, solver, iters, tau, seed, noise, progress,
-              oracle=False, retrace=None, model=None, history=False):
+              oracle=False, retrace=None, model=None, history=False, tol=None):
     """Render ``scene`` once and reconstruct it from each view count; returns (rows, images).
 
     With ``oracle`` (True, or a set of view counts) those view counts are also reconstructed
@@ -175,7 +175,8 @@ def run_scene(scene: str, design, cal, views, *, solver, iters, tau, seed, noise
     (:func:`kaleidospec.reconstruct.reconstruct_oracle`, traced with its own seed), on the
     design's grid.  With ``retrace`` (a seed) also with the exact operator traced with that
     seed.  With ``history`` every row keeps the PSNR after each iteration (``psnr_history``,
-    the oracle's too)."""
+    the oracle's too).  Every solve stops at ``iters`` iterations or once the relative change
+    falls below ``tol``."""
     from kaleidospec.evaluate import colorchecker_patches, patch_delta_e2000
     from kaleidospec.instrument import ground_truth, oracle_operator, render_scene
     from kaleidospec.models import truth_on_grid
@@ -194,8 +195,8 @@ def run_scene(scene: str, design, cal, views, *, solver, iters, tau, seed, noise
     render_s = time.perf_counter() - t0
     rows, cubes = [], {}
     for n in views:
-        cube, info = reconstruct_views(frame, meta, cal, n, solver=solver, iters=iters, tau=tau,
-                                       truth=on_grid[n], progress=progress, model=model)
+        cube, info = reconstruct_views(frame, meta, cal, n, solver=solver, iters=iters, tol=tol,
+                                       tau=tau, truth=on_grid[n], progress=progress, model=model)
         # The shifted model's grid leaves out the guard stripe's columns: score against the
         # truth moved onto the model's grid (info["truth_grid"]), not the design's square grid.
         grid = info["truth_grid"]
@@ -208,27 +209,31 @@ def run_scene(scene: str, design, cal, views, *, solver, iters, tau, seed, noise
         if oracle is True or (oracle and n in oracle):
             # The truth goes in only for the history: it costs a PSNR every iteration.
             ocube, oinfo = reconstruct_oracle(frame, meta, design, n, solver=solver,
-                                              iters=iters, tau=tau, progress=progress,
+                                              iters=iters, tol=tol, tau=tau, progress=progress,
                                               truth=truth if history else None)
             row["oracle"] = {**metrics_of(ocube, truth, wl),
-                             "seconds": float(oinfo.get("seconds", 0.0))}
+                             "seconds": float(oinfo.get("seconds", 0.0)),
+                             "iters": int(oinfo.get("iters", iters))}
             if history:
                 row["oracle"]["psnr_history"] = [float(v) for v in oinfo["psnr_history"]]
         if retrace is not None:
             op = oracle_operator(design, n, seed=retrace)
             rcube, rinfo = reconstruct_oracle(frame, meta, design, n, solver=solver,
-                                              iters=iters, tau=tau, progress=progress, op=op)
+                                              iters=iters, tol=tol, tau=tau, progress=progress,
+                                              op=op)
             row["retraced"] = {**metrics_of(rcube, truth, wl), "seed": int(retrace),
                                "seconds": float(rinfo.get("seconds", 0.0))}
         rows.append(row)
         cubes[n] = cube
-        extra = f"  oracle {fmt(row['oracle']['psnr'])} dB" if "oracle" in row else ""
+        extra = (f"  oracle {fmt(row['oracle']['psnr'])} dB ({row['oracle']['iters']} it)"
+                 if "oracle" in row else "")
         if patches:
             extra += f"  ΔE00 per patch {fmt(row['delta_e2000_patches'])}"
         if retrace is not None:
             extra += f"  retraced {fmt(row['retraced']['psnr'])} dB"
         print(f"  {scene_label(scene)}: {n} view(s)  PSNR {fmt(row['psnr'])} dB  "
-              f"(paper protocol {fmt(row['psnr_bandwise'])}){extra}  {row['seconds']:.1f} s",
+              f"(paper protocol {fmt(row['psnr_bandwise'])}){extra}  {row['iters']} it, "
+              f"{row['seconds']:.1f} s",
               flush=True)
         if history:
             print_history("calibrated", row["psnr_history"])
@@ -236,6 +241,14 @@ def run_scene(scene: str, design, cal, views, *, solver, iters, tau, seed, noise
                 print_history("oracle", row["oracle"]["psnr_history"])
     return {"render_seconds": render_s, "rows": rows, "cube_shape": list(grid.shape)}, \
         (grid, wl, cubes)
+
+
+def stop_rule(iters: int, tol, short: bool = False) -> str:
+    """The stopping rule in words."""
+    if not tol:
+        return f"{iters} it" if short else f"{iters} iterations"
+    return (f"≤{iters} it, tol {tol:g}" if short else
+            f"until a relative change < {tol:g} (at most {iters} iterations)")
 
 
 def history_points(n_iters: int) -> list[int]:
@@ -415,7 +428,9 @@ def main(argv=None) -> int:
 
     # kaleidospec's defaults were chosen from measurements on the calibrated path (README).
     ap.add_argument("--solver", default=DEFAULTS["solver"])
-    ap.add_argument("--iters", type=int, default=DEFAULTS["iters"])
+    ap.add_argument("--iters", type=int, default=DEFAULTS["iters"], help="most iterations")
+    ap.add_argument("--tol", type=float, default=DEFAULTS["tol"],
+                    help="stop once the relative change falls below it (0: run all --iters)")
     ap.add_argument("--tau", type=float, default=None, help="TV weight (solver default if unset)")
     ap.add_argument("--seed", type=int, default=0, help="sensor noise seed")
     ap.add_argument("--no-noise", action="store_true", help="noise-free frames")
@@ -471,7 +486,7 @@ def main(argv=None) -> int:
     print(f"design {a.design} {' '.join(a.overrides)} (hash {design.hash}): "
           f"{design.view_size_px}×{design.view_size_px} px views, {design.n_bands} bands "
           f"{design.wavelengths[0]:g}–{design.wavelengths[-1]:g} nm; solver {a.solver}, "
-          f"{a.iters} iterations, {a.model} model", flush=True)
+          f"{stop_rule(a.iters, a.tol)}, {a.model} model", flush=True)
     t0 = time.perf_counter()
     cal = calibrate(design, model=a.model, progress=a.progress)
     cal_s = time.perf_counter() - t0
@@ -496,7 +511,7 @@ def main(argv=None) -> int:
         res, imgs = run_scene(scene, design, cal, views, solver=a.solver, iters=a.iters,
                               tau=a.tau, seed=a.seed, noise=not a.no_noise, progress=a.progress,
                               oracle=oracle, retrace=a.retrace, model=a.model,
-                              history=a.history)
+                              history=a.history, tol=a.tol or None)
         results[lab], images[lab] = res, imgs
 
     print_table(results, views)
@@ -506,7 +521,7 @@ def main(argv=None) -> int:
         print(f"  [{'ok' if t['ok'] else 'MISSED'}] {name} ({t['detail']})")
 
     title = (f"{a.design} design {design.view_size_px}px views, {design.n_bands} bands, "
-             f"{a.solver} {a.iters} it")
+             f"{a.solver} {stop_rule(a.iters, a.tol, short=True)}")
     plot_psnr(results, views, a.out / "exp_views.png", title)
     plot_srgb(images, views, a.out / "exp_views_srgb.png", results)
     if a.history:
@@ -516,7 +531,8 @@ def main(argv=None) -> int:
         "paper_fig7_psnr_db": PAPER_FIG7,
         "design": a.design, "overrides": a.overrides, "design_hash": design.hash,
         "view_size_px": design.view_size_px, "wavelengths_nm": design.wavelengths,
-        "solver": a.solver, "iters": a.iters, "tau": a.tau, "seed": a.seed, "model": a.model,
+        "solver": a.solver, "iters": a.iters, "tol": a.tol or None, "tau": a.tau,
+        "seed": a.seed, "model": a.model,
         "noise": not a.no_noise, "views": views, "calibration_seconds": cal_s,
         "scenes": results, "targets": targets,
     })

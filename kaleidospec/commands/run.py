@@ -25,7 +25,10 @@ def run(
                               "(views added in the order centre, left, right, top, bottom, "
                               "corners)."),
     solver: str = typer.Option("fista-tv", "--solver", help="Solver (recon.solvers); default fista-tv."),
-    iters: int = typer.Option(100, "--iters", help="Iterations."),
+    iters: int = typer.Option(400, "--iters", help="Most iterations."),
+    tol: float = typer.Option(1e-3, "--tol", help="Stop once the relative change "
+                              "of the cube per iteration falls below this (0: run all "
+                              "--iters)."),
     tau: Optional[float] = typer.Option(None, "--tau", help="TV weight (default: the "
                                         "solver's own)."),
     seed: int = typer.Option(0, "--seed", help="Sensor-noise seed of the scene frame."),
@@ -51,6 +54,8 @@ def run(
         raise InputError(f"--solver must be one of {', '.join(solver_names())}, got {solver!r}")
     if iters < 1:
         raise InputError(f"--iters must be >= 1, got {iters}")
+    if not tol >= 0:
+        raise InputError(f"--tol must be >= 0, got {tol}")
     check_model(model)
     if tau is not None and not tau >= 0:
         raise InputError(f"--tau must be >= 0, got {tau}")
@@ -66,7 +71,7 @@ def run(
         raw_frame = (frame, meta)
     else:
         d = design_for_views(d, max(counts))
-    run_scene(scene, d, out, views=counts, solver=solver, iters=iters, tau=tau, seed=seed,
-              progress=progress, oracle=oracle and raw is None, raw=raw_frame,
-              widen=raw is None, log=typer.echo, model=model)
+    run_scene(scene, d, out, views=counts, solver=solver, iters=iters, tol=tol or None,
+              tau=tau, seed=seed, progress=progress, oracle=oracle and raw is None,
+              raw=raw_frame, widen=raw is None, log=typer.echo, model=model)
     typer.echo(f"wrote {out}/")

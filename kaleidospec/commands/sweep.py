@@ -58,8 +58,9 @@ def _options(kind: str):
         views: int = typer.Option(5, "--views", help="Views used for the reconstruction (1..9)."),
         solver: Optional[str] = typer.Option(None, "--solver", help="twist, gap-tv or fista-tv "
                                              "(default: kaleidospec run's, fista-tv)."),
-        iters: Optional[int] = typer.Option(None, "--iters", help="Solver iterations (default: "
-                                            "kaleidospec run's, 100)."),
+        iters: Optional[int] = typer.Option(None, "--iters", help="Most solver iterations "
+                                            "(default: kaleidospec run's, 400, stopping at "
+                                            "a relative change below 1e-3)."),
         tau: Optional[float] = typer.Option(None, "--tau", help="TV weight (solver default)."),
         seed: int = typer.Option(0, "--seed", help="Render/noise seed."),
         spp: int = typer.Option(8, "--spp", help="Samples per pixel of the measurement renders."),

@@ -81,6 +81,7 @@ def test_raw_missing_view_is_refused(done, tmp_path, capsys):
 
 def test_bad_options(tmp_path, capsys):
     for args in (["--views", "0"], ["--views", "1,a"], ["--iters", "0"], ["--solver", "nope"],
+                 ["--tol", "-1"], ["--tol", "nan"],
                  ["--model", "exact"],
                  # GAP-TV diverges on the exact operator: refused unless the oracle is off.
                  ["--solver", "gap-tv"]):
@@ -88,3 +89,29 @@ def test_bad_options(tmp_path, capsys):
                             "--no-progress", *SET, *args], capsys)
         assert code == 2, args
     assert not (tmp_path / "x").exists()
+
+
+def test_cli_defaults_are_the_reconstruction_defaults():
+    # The CLI states its defaults as literals (its help imports no NumPy); they must be these.
+    import inspect
+
+    from kaleidospec.commands.run import run
+    from kaleidospec.reconstruct import DEFAULTS
+
+    params = inspect.signature(run).parameters
+    assert params["iters"].default.default == DEFAULTS["iters"]
+    assert params["tol"].default.default == DEFAULTS["tol"]
+    assert params["solver"].default.default == DEFAULTS["solver"]
+
+
+def test_summary_states_the_stopping_rule_and_the_iterations_done(done):
+    from kaleidospec.report import summary_lines
+
+    m = json.loads((done / "metrics.json").read_text())
+    assert m["tol"] == 1e-3 and m["iters"] == 10
+    lines = summary_lines(m)
+    assert "until a relative change < 0.001 (at most 10 iterations)" in lines[0]
+    head = lines[2].split()
+    for n, e in m["views"].items():
+        row = next(r.split() for r in lines[4:] if r.split()[:1] == [n])
+        assert row[head.index("it")] == str(e["iters"]) and e["iters"] <= 10

@@ -12,13 +12,14 @@ def cache(shared_cache):
 
 
 #: PSNR (dB) at this test size: the 50 nm ``small`` design, the ColorChecker at twice the
-#: grid through the scene frames' own trace, FISTA-TV with the application's defaults, measured
+#: grid through the scene frames' own trace, FISTA-TV with the application's defaults (to a
+#: relative change of 1e-3: 153 / 96 / 253 / 119 / 248 / 152 iterations), measured
 #: with the calibration from its own captures and with the exact operator traced with its own
 #: seed.  Honest figures: no capture shares the frame's realisation (tests/sim/test_transport.py
 #: checks the realisations converge).  A change that moves one by more than TOLERANCE_DB, up or
 #: down, must say why (and update these).
-FIGURES = {("shifted", 1): 17.40, ("shifted", 5): 26.11, ("footprint", 1): 16.70,
-           ("footprint", 5): 30.12, ("oracle", 1): 16.65, ("oracle", 5): 30.25}
+FIGURES = {("shifted", 1): 18.09, ("shifted", 5): 26.38, ("footprint", 1): 18.87,
+           ("footprint", 5): 30.25, ("oracle", 1): 18.89, ("oracle", 5): 30.70}
 TOLERANCE_DB = 0.3
 
 
@@ -48,7 +49,7 @@ def test_footprint_model_is_within_1db_of_the_exact_operator(setup, footprint_ca
                                                               oracle_psnr):
     """The footprint model, measured with comb captures, reconstructs within 1 dB of the
     converged exact operator with 1 and 5 views at this size (the shifted model trails it by
-    4.2 dB at 5 views), and at its measured figures."""
+    4.3 dB at 5 views), and at its measured figures."""
     from kaleidospec.reconstruct import reconstruct_views
 
     d, cal, frame, meta, truth, wl = setup
@@ -59,6 +60,21 @@ def test_footprint_model_is_within_1db_of_the_exact_operator(setup, footprint_ca
         got = info["metrics"]["psnr"]
         assert got > oracle_psnr[n] - 1.0, (n, oracle_psnr[n], got)
         assert abs(got - FIGURES[("footprint", n)]) < TOLERANCE_DB, (n, got)
+
+
+def test_default_stops_once_converged(setup):
+    """The default stopping rule (relative change below ``tol``) ends well before the cap and
+    where running on to it changes the PSNR by less than 0.1 dB; a fixed count without ``tol``
+    runs every iteration."""
+    from kaleidospec.reconstruct import DEFAULTS, reconstruct_views
+
+    d, cal, frame, meta, truth, wl = setup
+    _, info = reconstruct_views(frame, meta, cal, 1, truth=truth)
+    assert info["converged"] and info["iters"] < DEFAULTS["iters"] * 0.6
+    _, full = reconstruct_views(frame, meta, cal, 1, truth=truth, tol=None)
+    assert full["iters"] == DEFAULTS["iters"] and not full["converged"]
+    assert abs(full["metrics"]["psnr"] - info["metrics"]["psnr"]) < 0.1, \
+        (info["metrics"]["psnr"], full["metrics"]["psnr"])
 
 
 def test_bad_input(setup):
