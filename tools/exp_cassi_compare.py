@@ -43,7 +43,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from exp_views import (  # noqa: E402  (sibling script, shared table/figure helpers)
     fmt, get_design, matplotlib_agg, metrics_of, parse_list, save_figure, scene_label,
-    srgb, srgb_peak, write_json,
+    srgb, srgb_peak, stop_rule, write_json,
 )
 
 CONFIGS = {
@@ -272,8 +272,8 @@ def main(argv=None) -> int:
 
     print(f"design {a.design} {' '.join(a.overrides)}: kaleidoscope {design.hash} "
           f"({design.view_size_px} px views), traditional {design_t.hash} "
-          f"({design_t.view_size_px} px), {design.n_bands} bands; {a.solver}, until a relative "
-          f"change < {DEFAULTS['tol']:g} (at most {a.iters} it)",
+          f"({design_t.view_size_px} px), {design.n_bands} bands; {a.solver}, "
+          f"{stop_rule(a.iters, DEFAULTS['tol'])}",
           flush=True)
     t0 = time.perf_counter()
     if a.operator == "calibrated":

@@ -463,6 +463,8 @@ def main(argv=None) -> int:
         views = sorted(set(parse_list(a.views, int)))
         if not views or views[0] < 1 or views[-1] > 9:
             raise InputError("--views must be counts between 1 and 9")
+        if a.iters < 1 or not a.tol >= 0:
+            raise InputError("--iters must be >= 1 and --tol >= 0")
         oracle = a.oracle and (True if a.oracle_views is None
                                else set(parse_list(a.oracle_views, int)))
         scenes = parse_list(a.scenes)
