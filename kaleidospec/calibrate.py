@@ -6,9 +6,9 @@ runs :mod:`recon.calibration` on them, as a lab would with its targets:
 1. **views** — each view's box on the sensor, from the monochromatic whites;
 2. **dispersion** — :math:`\varphi_k(\lambda)` from the line captures (a polynomial fit), and
    where each band's light lands on average over the band-pass filter's interval;
-3. **masks** — each view's per-band mask image from the whites (a Wiener filter against the
-   Airy blur where it spans a pixel, :func:`recon.calibration.mask.wiener_deconvolve`), chrome
-   below :data:`MASK_FLOOR` set to zero;
+3. **masks** — each view's per-band mask image from the whites (deconvolved for the Airy
+   blur where it spans a pixel: total-variation-regularised,
+   :func:`recon.calibration.mask.tv_deconvolve`), chrome below :data:`MASK_FLOOR` set to zero;
 4. **geometry** — homographies to the centre view from the checkerboard at 550 nm, what they
    miss of each view (a smooth displacement field, :func:`recon.calibration.board_field`: the
    prism bends a view's image along x), and each view's *lead*: how many columns before its
