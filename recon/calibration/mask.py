@@ -354,8 +354,7 @@ def wiener_deconvolve(views: np.ndarray, radii: np.ndarray, balance: float = WIE
     """
     from skimage.restoration import wiener
 
-    if not (np.isfinite(balance) and balance > 0):
-        raise InputError(f"the Wiener balance must be positive, got {balance}")
+    _check_positive(balance, "the Wiener balance")
     identity = np.ones((1, 1), np.float32)
 
     def solve(p, psf):
@@ -411,12 +410,10 @@ def tv_deconvolve(views: np.ndarray, radii: np.ndarray, weight: float = TV_WEIGH
     """
     import scipy.fft as sfft
 
-    if not (np.isfinite(weight) and weight > 0):
-        raise InputError(f"the TV weight must be positive, got {weight}")
-    if not (np.isfinite(balance) and balance > 0):
-        raise InputError(f"the Wiener balance must be positive, got {balance}")
-    if int(iterations) != iterations or iterations < 0:
-        raise InputError(f"TV deconvolution iterations must be >= 0, got {iterations}")
+    _check_positive(weight, "the TV weight")
+    _check_positive(balance, "the Wiener balance")
+    if not (isinstance(iterations, (int, np.integer)) and iterations >= 0):
+        raise InputError(f"TV deconvolution iterations must be an integer >= 0, got {iterations}")
     out = np.empty(views.shape, dtype=np.float32) if out is None else out
     if out.shape != views.shape:
         raise InputError(f"out has shape {out.shape}, views {views.shape}")
@@ -436,10 +433,10 @@ def tv_deconvolve(views: np.ndarray, radii: np.ndarray, weight: float = TV_WEIGH
     # The transfer functions, one per band, shared by the views: each kernel centred on the
     # origin of the padded (circular) domain.
     tf = np.empty((n_bands, hp, wp // 2 + 1), np.complex64)
-    for l, k in enumerate(psfs):
-        n = k.shape[0] // 2
+    for l, psf in enumerate(psfs):
+        n = psf.shape[0] // 2
         z = np.zeros((hp, wp), np.float32)
-        z[:2 * n + 1, :2 * n + 1] = k
+        z[:2 * n + 1, :2 * n + 1] = psf
         tf[l] = rfft(np.roll(z, (-n, -n), axis=(0, 1)))
     power = (tf.real ** 2 + tf.imag ** 2).astype(np.float32)
     # Bands in chunks: every array of the solve is (chunk, hp, wp), ~32 MB each.
@@ -457,8 +454,8 @@ def tv_deconvolve(views: np.ndarray, radii: np.ndarray, weight: float = TV_WEIGH
                 tops = crops.reshape(crops.shape[0], -1).max(axis=1).astype(np.float32)
                 lit = tops > 0
                 scale = np.where(lit, tops, 1.0).astype(np.float32)[:, None, None]
-                d = np.pad(crops / scale, ((0, 0), (pad, hp - h - pad), (pad, wp - w - pad)),
-                           mode="reflect")
+                d = np.pad((crops / scale).astype(np.float32, copy=False),
+                           ((0, 0), (pad, hp - h - pad), (pad, wp - w - pad)), mode="reflect")
                 kd = np.conj(tf[sl]) * rfft(d)            # k^flat * d, in Fourier
                 del d
                 u = irfft(kd / (power[sl] + np.float32(balance))).astype(np.float32)
@@ -473,6 +470,11 @@ def tv_deconvolve(views: np.ndarray, radii: np.ndarray, weight: float = TV_WEIGH
         if bar is not None:
             bar.close()
     return out
+
+
+def _check_positive(value, what: str) -> None:
+    if not (np.isfinite(value) and value > 0):
+        raise InputError(f"{what} must be positive, got {value}")
 
 
 def _fista_tv_deconvolve(u, kd, power, weight, iterations, rfft, irfft):

@@ -76,20 +76,27 @@ def test_richardson_lucy_undoes_airy_blur():
     assert e_sharp < 0.7 * e_blur, (e_blur, e_sharp)
 
 
-@pytest.mark.parametrize("r", [1.65, 2.1])      # the paper's mean and reddest Airy radii, px
-def test_wiener_filter_undoes_airy_blur_where_richardson_lucy_stalls(r):
-    # The TV deconvolution's start: one filter pass leaves less than half the error that 30
-    # Richardson-Lucy iterations leave (0.027 against 0.062 at 1.65 px, 0.073 against 0.119
-    # at 2.1 px when written), and far less than the blurred captures (0.16, 0.20).
+def _blurred_whites(r, noise):
+    """Captures of the synthetic masks blurred by an Airy disc of radius ``r`` px with relative
+    ``noise``: (captures, boxes, radii, mean absolute error of an estimate away from the
+    boxes' edges)."""
     rng = np.random.default_rng(2)
     c = _truth(rng)
-    caps, boxes = _captures(c, rng, noise=0.002, blur=r)
-    radii = np.full(len(OFFS), r)
+    caps, boxes = _captures(c, rng, noise=noise, blur=r)
     inner = (slice(None), slice(None), slice(3, -3), slice(3, -3))
 
     def error(est):
         return np.abs(est - c)[inner].mean()
 
+    return caps, boxes, np.full(len(OFFS), r), error
+
+
+@pytest.mark.parametrize("r", [1.65, 2.1])      # the paper's mean and reddest Airy radii, px
+def test_wiener_filter_undoes_airy_blur_where_richardson_lucy_stalls(r):
+    # The TV deconvolution's start: one filter pass leaves less than half the error that 30
+    # Richardson-Lucy iterations leave (0.027 against 0.062 at 1.65 px, 0.073 against 0.119
+    # at 2.1 px when written), and far less than the blurred captures (0.16, 0.20).
+    caps, boxes, radii, error = _blurred_whites(r, noise=0.002)
     e_blur = error(mask_images(caps, boxes))
     e_rl = error(mask_images(caps, boxes, airy_radius=radii, deconvolution="richardson-lucy"))
     wiener = mask_images(caps, boxes, airy_radius=radii, deconvolution="wiener")
@@ -143,15 +150,7 @@ def test_tv_deconvolution_beats_the_wiener_filter_on_noisy_whites(r):
     # ringing and smoothing the filter leaves at their edges.  With 1 % capture noise (about
     # what four averaged paper captures carry) and the default weight the error was 0.75 of the
     # filter's when written (0.031 against 0.041 at 1.65 px, 0.061 against 0.080 at 2.1 px).
-    rng = np.random.default_rng(2)
-    c = _truth(rng)
-    caps, boxes = _captures(c, rng, noise=0.01, blur=r)
-    radii = np.full(len(OFFS), r)
-    inner = (slice(None), slice(None), slice(3, -3), slice(3, -3))
-
-    def error(est):
-        return np.abs(est - c)[inner].mean()
-
+    caps, boxes, radii, error = _blurred_whites(r, noise=0.01)
     wiener = mask_images(caps, boxes, airy_radius=radii, deconvolution="wiener")
     tv = mask_images(caps, boxes, airy_radius=radii, deconvolution="tv")
     assert tv.min() >= 0.0 and tv.max() <= 1.0
