@@ -183,7 +183,7 @@ def mask_images(white_captures, view_boxes, dark=None, airy_radius=None, rl_iter
 
 def view_masks(white_captures, view_boxes, tap_start, tap_weights, view_width: int, *,
                dark=None, airy_radius=None, rl_iterations: int = 30, percentile: float = 99.0,
-               rounds: int = 3, iterations: int = 100, deconvolution: str = "tv",
+               rounds: int = 3, iterations: int = 100, deconvolution: str = "wiener",
                balance: float = WIENER_BALANCE) -> tuple[np.ndarray, np.ndarray]:
     r"""Every view's mask :math:`M_k` in view coordinates, jointly from all per-band whites.
 
@@ -218,7 +218,9 @@ def view_masks(white_captures, view_boxes, tap_start, tap_weights, view_width: i
     view_width : int
         :math:`W_v`; every kernel must fit: :math:`s + j + W_v \le W_m`.
     dark, airy_radius, rl_iterations, percentile, deconvolution, balance
-        As for :func:`mask_images`.
+        As for :func:`mask_images`; the deconvolution is the Wiener filter by default here, the
+        one this model was measured with (``docs/figures.md``: 22.11 dB, five ``paper`` views),
+        the TV deconvolution is not measured with it yet.
     rounds : int
         Alternations between the masks and the per-band scales (>= 1).
     iterations : int
