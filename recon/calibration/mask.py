@@ -416,9 +416,7 @@ def tv_deconvolve(views: np.ndarray, radii: np.ndarray, weight: float = TV_WEIGH
     _check_positive(balance, "the Wiener balance")
     if not (isinstance(iterations, (int, np.integer)) and iterations >= 0):
         raise InputError(f"TV deconvolution iterations must be an integer >= 0, got {iterations}")
-    out = np.empty(views.shape, dtype=np.float32) if out is None else out
-    if out.shape != views.shape:
-        raise InputError(f"out has shape {out.shape}, views {views.shape}")
+    out, bar = _output_and_bar(views, out, progress, "deconvolution (TV)")
     n_views, n_bands, h, w = views.shape
     psfs = [airy_kernel(float(r), support=3.0) for r in radii]
     pad = max(k.shape[0] // 2 for k in psfs)
@@ -443,12 +441,7 @@ def tv_deconvolve(views: np.ndarray, radii: np.ndarray, weight: float = TV_WEIGH
     power = (tf.real ** 2 + tf.imag ** 2).astype(np.float32)
     # Bands in chunks: every array of the solve is (chunk, hp, wp), ~32 MB each.
     chunk = max(1, min(n_bands, (8 << 20) // (hp * wp)))
-    bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=n_views * n_bands, desc="deconvolution (TV)", unit="crop", leave=False)
-    try:
+    with bar:
         for k in range(n_views):
             for b0 in range(0, n_bands, chunk):
                 sl = slice(b0, min(b0 + chunk, n_bands))
@@ -466,11 +459,7 @@ def tv_deconvolve(views: np.ndarray, radii: np.ndarray, weight: float = TV_WEIGH
                 u = u[:, pad:pad + h, pad:pad + w] * scale
                 u[~lit] = 0.0
                 out[k, sl] = u
-                if bar is not None:
-                    bar.update(crops.shape[0])
-    finally:
-        if bar is not None:
-            bar.close()
+                bar.update(crops.shape[0])
     return out
 
 
@@ -561,16 +550,8 @@ def _crop_by_crop(views, radii, out, progress, solve, *, support: float = 2.0,
     """``solve(padded crop / its maximum, band's Airy kernel)`` for every crop of (K, L, h, w)
     ``views`` into ``out``, scaled back (a dark crop stays 0); the crop reflect-padded by the
     kernel half-width so that its edge does not ring."""
-    out = np.empty(views.shape, dtype=np.float32) if out is None else out
-    if out.shape != views.shape:
-        raise InputError(f"out has shape {out.shape}, views {views.shape}")
-    bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=views.shape[0] * views.shape[1], desc="deconvolution", unit="crop",
-                   leave=False)
-    try:
+    out, bar = _output_and_bar(views, out, progress, "deconvolution")
+    with bar:
         for l in range(views.shape[1]):
             psf = airy_kernel(float(radii[l]), support=support)
             pad = psf.shape[0] // 2
@@ -584,12 +565,21 @@ def _crop_by_crop(views, radii, out, progress, solve, *, support: float = 2.0,
                                 out=out[k, l], casting="unsafe")
                 else:
                     out[k, l] = 0.0
-                if bar is not None:
-                    bar.update(1)
-    finally:
-        if bar is not None:
-            bar.close()
+                bar.update(1)
     return out
+
+
+def _output_and_bar(views, out, progress: bool, desc: str):
+    """``out`` for (K, L, h, w) ``views`` (a new float32 stack when None; refused when its
+    shape differs) and a progress bar over the crops, silent unless ``progress``."""
+    from tqdm import tqdm
+
+    out = np.empty(views.shape, dtype=np.float32) if out is None else out
+    if out.shape != views.shape:
+        raise InputError(f"out has shape {out.shape}, views {views.shape}")
+    bar = tqdm(total=views.shape[0] * views.shape[1], desc=desc, unit="crop", leave=False,
+               disable=not progress)
+    return out, bar
 
 
 def _skimage_rl(image, psf, iterations):
