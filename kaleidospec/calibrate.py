@@ -44,7 +44,7 @@ import numpy as np
 
 __all__ = ["MASK_FLOOR", "BOX_MARGIN_X", "DECONVOLVE_MIN_PX", "RADIOMETRY", "RADIOMETRY_VIEWS",
            "STEPS", "Measured", "calibrate", "calibrate_from_captures", "calibration_file",
-           "deconvolution_radii", "is_cached"]
+           "deconvolution_radii", "is_cached", "sensor_noise"]
 
 #: Calibrated mask values below this (fraction of the white level) are taken as chrome (0).
 MASK_FLOOR = 0.05
@@ -275,6 +275,9 @@ def calibrate_from_captures(design, *, models=None, repeats: int = 4, progress: 
         # the left, top and bottom views code 13-19 columns there): the shifted model starts
         # their images that much earlier.
         cal = with_leads(cal)
+        # The sensor's noise, which sets the reconstructions' TV weight (the ColorChecker's
+        # radiometry below reconstructs already).
+        cal = dataclasses.replace(cal, noise=sensor_noise(design, caps))
         if airy is not None:
             # The masks are now sharp, but the lens blurs the coded image after the mask: the
             # shifted and smeared models blur their measurement with the diffraction-limited
@@ -300,6 +303,17 @@ def calibrate_from_captures(design, *, models=None, repeats: int = 4, progress: 
             prefix = "" if name == "shifted" else f"{name}-model "
             raise RuntimeError(f"radiometric calibration failed: {prefix}gains {g.tolist()}")
     return dataclasses.replace(cal, **{GAINS[m]: g for m, g in gains.items()})
+
+
+def sensor_noise(design, caps):
+    """The sensor's photon-transfer curve ``[a, b]`` (:mod:`recon.calibration.noise`) from the
+    captures' pair of single frames; None without one (captures of fewer than 2 repeats)."""
+    from recon.calibration.noise import photon_transfer
+
+    pair = getattr(caps, "noise_pair", None)
+    if pair is None:
+        return None
+    return photon_transfer(pair[0], pair[1], design.max_dn)
 
 
 def _radiometry(design, caps, cal, model) -> np.ndarray:

@@ -24,7 +24,7 @@ import numpy as np
 
 from recon.errors import InputError
 
-__all__ = ["scores", "targets", "colorchecker_patches", "patch_delta_e2000",
+__all__ = ["scores", "targets", "colorchecker_patches", "patches_on_grid", "patch_delta_e2000",
            "sector_colour_errors", "sector_masker", "frame_metrics", "frame_means",
            "TARGET_SPAN_PX", "smallest_reaching", "apex_reaching"]
 
@@ -75,10 +75,18 @@ def colorchecker_patches(design, cal, model: str | None = None) -> dict:
     """The ColorChecker patches that lie wholly on the ``model``'s reconstruction grid, their
     middle half (edges mix neighbouring patches): ``{patch index: (y0, x0, h, w)}``."""
     from kaleidospec.models import cube_grid, grid_offset
+
+    return patches_on_grid(design, cube_grid(cal, model), grid_offset(design, cal, model))
+
+
+def patches_on_grid(design, shape, offset=(0.0, 0.0)) -> dict:
+    """The ColorChecker patches' middle halves on a grid of ``shape`` (H, W) whose pixel
+    :math:`(y, x)` is ground-truth pixel :math:`(y + o_y, x + o_x)`: those that lie wholly on
+    it, ``{patch index: (y0, x0, h, w)}`` (the exact operator's grid is the truth's: offset 0)."""
     from scenes.colorchecker import patch_boxes
 
-    h, w = cube_grid(cal, model)
-    oy, ox = grid_offset(design, cal, model)
+    h, w = (int(v) for v in shape)
+    oy, ox = offset
     out = {}
     for k, (r0, c0, r1, c1) in enumerate(patch_boxes((design.view_size_px,) * 2)):
         y0, x0 = int(round(r0 - oy)), int(round(c0 - ox))

@@ -12,7 +12,10 @@ radiometric gains, :math:`e` the frame's exposure factor (``radiance_scale`` in 
 so that :math:`\hat f` is in the scene cube's own units (comparable with the truth, and about
 [0, 1], the range the solvers' :math:`\tau` is meant for), and :math:`s` the scale that gives
 the rows of :math:`sH` unit mean squared norm (:func:`unit_row_scale`), so that one TV weight
-(:func:`tv_weight`) serves every model, operator and design.
+rule (:func:`tv_weight`) serves every model, operator and design: :math:`\tau = \kappa\, n\,
+\bar\sigma`, with :math:`n` the views and :math:`\bar\sigma` the root-mean-square noise of
+:math:`s\,g/e`, from the sensor's photon-transfer curve (the calibration's
+:mod:`recon.calibration.noise`; the design's own sensor for the exact operator).
 
 :func:`reconstruct_oracle` solves the same problem with the design's exact operator
 (:func:`kaleidospec.instrument.oracle_operator`) on the ground-truth grid: the reference that
@@ -31,9 +34,10 @@ import numpy as np
 
 from recon.errors import InputError
 
-__all__ = ["DEFAULTS", "TAU_PER_VIEW", "first_views", "tv_weight", "unit_row_scale",
-           "normalised", "solve_views", "calibrated_operator", "frame_measurements",
-           "reconstruct_views", "reconstruct_oracle", "Reconstructor"]
+__all__ = ["DEFAULTS", "TAU_PER_VIEW", "TAU_PER_NOISE", "first_views", "tv_weight",
+           "unit_row_scale", "normalised", "measurement_noise", "design_noise", "solve_views",
+           "calibrated_operator", "frame_measurements", "reconstruct_views",
+           "reconstruct_oracle", "Reconstructor"]
 
 #: Reconstruction defaults: FISTA-TV run until the relative change of the cube
 #: :math:`\|f_k-f_{k-1}\|/\|f_{k-1}\|` falls below ``tol``, at most ``iters`` iterations.  A fixed
@@ -43,9 +47,14 @@ __all__ = ["DEFAULTS", "TAU_PER_VIEW", "first_views", "tv_weight", "unit_row_sca
 #: (``small``, one view: iteration 153 of the test design; ``paper``, five views: iteration
 #: 220).  See docs/figures.md, "Convergence of the default reconstruction".
 DEFAULTS = {"solver": "fista-tv", "iters": 400, "tol": 1e-3, "tau": None}
-#: Default TV weight per solver (per view for the solvers whose data term sums over views):
-#: measured on the ``small`` design, see :func:`tv_weight`.
+#: Default TV weight per solver (per view for the solvers whose data term sums over views) where
+#: the measurement's noise is not known: measured on the ``small`` design, see :func:`tv_weight`.
 TAU_PER_VIEW = {"fista-tv": 0.005, "twist": 0.005}
+#: TV weight per view and per unit of the measurement's rms noise (unit-row-norm units), for the
+#: solvers whose data term is a least-squares fit: :math:`\tau = \kappa\, n\, \bar\sigma`.
+#: Chosen on a scene no reported figure uses (the colour wheel, ``small``, five views; see
+#: docs/figures.md): it gives ``small`` about 0.4 and ``paper`` about 1.5 times the fixed weight.
+TAU_PER_NOISE = {"fista-tv": 0.15, "twist": 0.15}
 
 
 def first_views(n_views) -> tuple[int, ...]:
@@ -69,16 +78,46 @@ def _check_calibrated(cal, view_ids) -> None:
                          f"{list(cal.view_ids)} (recalibrate with the views the run needs)")
 
 
-def tv_weight(solver, tau, n_views):
-    """The TV weight: ``tau`` if given, else the solver's default per view × the views (the
-    data term sums over the views' pixels; GAP-TV's projection step does not, so its weight
-    is per view)."""
+def tv_weight(solver, tau, n_views, noise=None):
+    r"""The TV weight: ``tau`` if given; else, for the least-squares solvers
+    (:data:`TAU_PER_NOISE`) with the measurement's rms ``noise`` (unit-row-norm units) known,
+    :math:`\kappa\, n\, \bar\sigma`; else the solver's fixed default per view × the views.
+
+    The data term sums over the views' pixels, hence the factor :math:`n` (GAP-TV's
+    projection step does not: its weight is per view, and fixed).  The weight follows the
+    noise because the best one does: with the fixed weight ``small`` did best at 0.35-0.5
+    times it and ``paper`` at 2 times, and their noise in these units differs by 3.6 times
+    (docs/figures.md).
+    """
     if tau is not None:
         return tau
+    if noise is not None and solver in TAU_PER_NOISE:
+        if not (math.isfinite(noise) and noise > 0):
+            raise InputError(f"the measurement's noise must be positive, got {noise}")
+        return TAU_PER_NOISE[solver] * float(noise) * int(n_views)
     from recon.app import default_tau
 
     base = TAU_PER_VIEW.get(solver, default_tau(solver))
     return base if solver == "gap-tv" else base * int(n_views)
+
+
+def measurement_noise(g, metadata, noise_model):
+    r"""The rms noise of a measurement ``g`` (a raw frame's pixels over its ``radiance_scale``
+    :math:`e`): :math:`\sqrt{\overline{a\, e g + b}}/e` for the photon-transfer curve
+    ``noise_model`` ``[a, b]`` (:mod:`recon.calibration.noise`); None without one."""
+    if noise_model is None:
+        return None
+    from recon.calibration.noise import noise_rms
+
+    e = float((metadata or {}).get("radiance_scale") or 1.0)
+    return noise_rms(np.asarray(g, np.float32) * np.float32(e), noise_model) / e
+
+
+def design_noise(design) -> np.ndarray:
+    r"""The photon-transfer curve ``[a, b]`` of ``design``'s own sensor (the exact operator's:
+    no measurement): :math:`a = 1/G`, :math:`b = (\sigma_r/G)^2 + 1/12`, :math:`G` e⁻/DN."""
+    gain = float(design.full_well_e) / design.max_dn
+    return np.array([1.0 / gain, (float(design.read_noise_e) / gain) ** 2 + 1.0 / 12.0])
 
 
 def unit_row_scale(op) -> float:
@@ -107,20 +146,23 @@ def normalised(op, g):
 
 def solve_views(op, g, n_views: int, *, solver: str = DEFAULTS["solver"],
                 iters: int = DEFAULTS["iters"], tol=DEFAULTS["tol"], tau=None, x0=None, truth=None,
-                wavelengths=None, progress: bool = False):
+                wavelengths=None, progress: bool = False, noise=None):
     """Reconstruct measurements ``g`` of ``n_views`` views through ``op`` the way every path of
     the application does: operator and data brought to unit mean row norm (:func:`normalised`),
-    the TV weight from :func:`tv_weight`, then :func:`recon.app.reconstruct` (at most ``iters``
+    the TV weight from :func:`tv_weight` (``noise``: the rms noise of ``g``, in its units, e.g.
+    :func:`measurement_noise`), then :func:`recon.app.reconstruct` (at most ``iters``
     iterations, fewer once the relative change falls below ``tol``; ``None`` runs them all).
-    Adds ``seconds``."""
+    Adds ``seconds`` and ``noise`` (in the unit-row-norm units)."""
     from recon.app import reconstruct
 
     op, g = normalised(op, g)
+    noise = None if noise is None else float(noise) * op.scale
     t0 = time.perf_counter()
-    tau = tv_weight(solver, tau, n_views)
+    tau = tv_weight(solver, tau, n_views, noise)
     cube, info = reconstruct(g, op, solver=solver, iters=iters, tol=tol, tau=tau, x0=x0,
                              truth=truth, wavelengths=wavelengths, progress=progress)
     info["seconds"] = time.perf_counter() - t0
+    info["noise"] = noise
     return cube, info
 
 
@@ -206,7 +248,8 @@ def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = DEFAULTS["
             truth_on_grid(t, design_of(metadata, design), cal, model, ids)
     cube, info = solve_views(calibrated_operator(cal, ids, model), g, len(ids), solver=solver,
                              iters=iters, tol=tol, tau=tau, x0=x0, truth=tg,
-                             wavelengths=cal.wavelengths, progress=progress)
+                             wavelengths=cal.wavelengths, progress=progress,
+                             noise=measurement_noise(g, metadata, cal.noise))
     info["view_ids"] = list(ids)
     if tg is not None:
         info["truth_grid"] = tg
@@ -228,7 +271,8 @@ def reconstruct_oracle(frame, metadata, design, n_views, *, solver: str = DEFAUL
     if op is None:
         op = oracle_operator(design, n_views, inversion=inversion)
     return solve_views(op, g, n_views, solver=solver, iters=iters, tol=tol, tau=tau,
-                       truth=truth, wavelengths=design.wavelengths, progress=progress)
+                       truth=truth, wavelengths=design.wavelengths, progress=progress,
+                       noise=measurement_noise(g, metadata, design_noise(design)))
 
 
 def check_oracle_solver(solver: str) -> str:
@@ -267,26 +311,33 @@ class Reconstructor:
     solver : str
         A :mod:`recon.solvers` name.
     tau : float, optional
-        TV weight (:func:`tv_weight`'s default if None).
+        TV weight (:func:`tv_weight`'s default if None: with ``noise``, set by the first
+        frame measured and kept for the sequence).
     threads : int, optional
         Threads of the TV prox (GAP-TV and the temporal variant).
     to_grid : callable, optional
         ``to_grid(truth (v, v, L), metadata) -> truth on the operator's grid``.
     offset : callable, optional
         ``offset(metadata) -> (oy, ox)``: where the operator's grid sits on the truth's.
+    noise : (2,) array_like, optional
+        The sensor's photon-transfer curve (:func:`measurement_noise`).
     """
 
     def __init__(self, op, measure, *, solver: str = "gap-tv", tau: float | None = None,
-                 threads: int | None = None, to_grid=None, offset=None, kind: str = ""):
+                 threads: int | None = None, to_grid=None, offset=None, kind: str = "",
+                 noise=None):
         from recon.operators import ScaledOperator
 
         # The scaling and TV weight of solve_views, so that a video frame is reconstructed
         # exactly as `kaleidospec run` reconstructs a still.
         scale = unit_row_scale(op)
         self.op = ScaledOperator(op, scale)
-        self._measure = lambda frame, meta: measure(frame, meta) * np.float32(scale)
+        self._raw = measure
         self.solver = solver
-        self.tau = tv_weight(solver, tau, op.oshape[0])
+        self._noise_model = noise
+        self.tau = None
+        if tau is not None or noise is None or solver not in TAU_PER_NOISE:
+            self.tau = tv_weight(solver, tau, op.oshape[0])
         self.threads = threads
         self._to_grid = to_grid
         self._offset = offset
@@ -307,7 +358,7 @@ class Reconstructor:
                    to_grid=lambda t, meta: truth_on_grid(t, design_of(meta), cal,
                                                          view_ids=ids),
                    offset=lambda meta: grid_offset(design_of(meta), cal), kind="calibrated",
-                   **kw)
+                   noise=cal.noise, **kw)
 
     @classmethod
     def oracle(cls, design, n_views: int, **kw) -> "Reconstructor":
@@ -316,11 +367,16 @@ class Reconstructor:
 
         op = oracle_operator(design, n_views)
         return cls(op, lambda frame, meta: oracle_measurements(frame, meta, design, n_views),
-                   kind="oracle", **kw)
+                   kind="oracle", noise=design_noise(design), **kw)
 
     def measurement(self, frame, metadata) -> np.ndarray:
-        """The (K, Hv, Wm) measurement in the operator's units."""
-        return self._measure(frame, metadata)
+        """The (K, Hv, Wm) measurement in the operator's units (the first one measured sets
+        the TV weight where it follows the noise)."""
+        g = self._raw(frame, metadata)
+        if self.tau is None:
+            noise = measurement_noise(g, metadata, self._noise_model) * self.op.scale
+            self.tau = tv_weight(self.solver, None, self.op.oshape[0], noise)
+        return g * np.float32(self.op.scale)
 
     def truth_on_grid(self, truth, metadata) -> np.ndarray:
         """The ground truth (v, v, L) on the reconstruction grid."""
@@ -356,6 +412,9 @@ class Reconstructor:
         ``x0`` (H, W, L) warm-starts the solver; ``mu`` > 0 (with ``x0``) adds the temporal
         term :math:`\mu\lVert f - x_0\rVert_1` (GAP-TV only, :mod:`recon.temporal`).
         """
+        if self.tau is None:
+            raise InputError("the TV weight follows the noise: measure a frame "
+                             "(Reconstructor.measurement) before solving, or give tau")
         t0 = time.perf_counter()
         x0_bm = None if x0 is None else np.ascontiguousarray(
             np.moveaxis(np.asarray(x0, np.float32), 2, 0))

@@ -264,6 +264,20 @@ def _segment_reconstructor(settings: dict):
                                     settings["views"], **kw)
 
 
+def sequence_weight(out, settings: dict):
+    """The TV weight of the whole sequence where it follows the noise (FISTA-TV, TwIST): the
+    first frame's, so that every segment solves with the same one; None (each segment's
+    solver default) otherwise."""
+    from kaleidospec.reconstruct import TAU_PER_NOISE
+    from recon.io.raw import read_raw
+
+    if settings["solver"] not in TAU_PER_NOISE:
+        return None
+    rec = _segment_reconstructor(settings)
+    rec.measurement(*read_raw(VideoLayout(out).raw(0)))
+    return float(rec.tau)
+
+
 def plan_segments(n_frames: int, segment_frames: int) -> list[list[int]]:
     """Split 0 … n_frames − 1 into consecutive ``[start, stop)`` segments of at most
     ``segment_frames`` frames."""
@@ -595,6 +609,8 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
     else:
         calibrate(d, cache_dir=cache_dir, progress=progress)
         settings["calibration"] = str(calibration_file(d, cache_dir))
+    if tau is None:
+        settings["tau"] = sequence_weight(out, settings)
     rec_stats = reconstruct_sequence(out, n, segments, settings, workers=nworkers,
                                      scheduler=scheduler, progress=progress)
     summary = write_summary(out, n)

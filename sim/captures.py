@@ -17,6 +17,9 @@ the board's pattern size from that sidecar, never from the design.
 ``checker_white``  the uniform white at 550 nm (the checkerboard's flat field)
 ``colorchecker``   the 24-patch ColorChecker under D65, full spectrum (box band sampling, like
                    a scene frame), with the patches' reference radiances
+``noise_pair``     the ColorChecker capture's first two repeats, kept apart (2 frames: the
+                   sensor's photon-transfer pair, :mod:`recon.calibration.noise`; absent
+                   with fewer than 2 repeats)
 ``comb``           optional (:func:`comb_captures`): a lattice of single lit texels through
                    every band's band-pass, all :math:`P_y P_x` phases (L·P_y·P_x frames,
                    streamed one at a time)
@@ -157,6 +160,8 @@ class Captures:
     #: Patch boxes (24, 4) = y0, x0, h, w on the centre view's grid (the chart's layout).
     patch_boxes: np.ndarray
     meta: dict = field(default_factory=dict)   # name -> sidecar (white/line: list per band)
+    #: (2, Hs, Ws) two single frames of the ColorChecker capture (None with < 2 repeats).
+    noise_pair: np.ndarray | None = None
 
     def names(self) -> list[str]:
         """Capture names recorded in the calibration file."""
@@ -166,7 +171,7 @@ class Captures:
 
 
 def capture(design, cube, wavelengths, *, wavelength_nm=None, repeats: int = 4, seed: int = 0,
-            target: str = "", sampling: str = "box"):
+            target: str = "", sampling: str = "box", singles=None):
     r"""One capture: the mean of ``repeats`` noisy frames (or one noise-free frame if 0).
 
     The optics and the exposure are deterministic: the expected frame is integrated once and
@@ -178,6 +183,9 @@ def capture(design, cube, wavelengths, *, wavelength_nm=None, repeats: int = 4, 
     frame : (Hs, Ws) float32, DN
     meta : dict
         :func:`sim.frame.simulate_frame`'s sidecar plus ``target`` and ``repeats``.
+
+    ``singles``, a (n, Hs, Ws) float32 array, receives the first ``n`` repeats as they were
+    read out, before averaging (the photon-transfer pair).
     """
     from sim.bands import check_cube
     from sim.frame import FrameModel, exposure, frame_metadata
@@ -198,7 +206,10 @@ def capture(design, cube, wavelengths, *, wavelength_nm=None, repeats: int = 4, 
         acc = np.zeros(ne.shape, np.float64)
         for r in range(repeats):
             # Same exposure for every repeat (the lab does not re-expose between frames).
-            acc += digitise(ne, design, seed=seed + r, noise=True)
+            one = digitise(ne, design, seed=seed + r, noise=True)
+            if singles is not None and r < len(singles):
+                singles[r] = one
+            acc += one
         frame = (acc / repeats).astype(np.float32)
     meta = frame_metadata(design, model.bands_nm, wavelength_nm=wavelength_nm, seed=seed,
                           method="transport", spp=None, trace_seed=model.trace_seed,
@@ -291,9 +302,12 @@ def render_captures(design, *, repeats: int = 4, seed: int = 1000, progress: boo
                                repeats=repeats, seed=s, target="white")
                 out["checker_white"], meta["checker_white"] = f, m
             else:
+                sensor = (int(design.sensor_height_px), int(design.sensor_width_px))
+                pair = np.empty((2,) + sensor, np.float32) if repeats >= 2 else None
                 f, m = capture(design, cc_cube, wl, repeats=repeats, seed=s,
-                               target="colorchecker")
+                               target="colorchecker", singles=pair)
                 out["colorchecker"], meta["colorchecker"] = f, m
+                out["noise_pair"] = pair
             del f
             if name in ("line", "checker_white"):
                 # A monochromatic capture's transport (one wavelength, its throughput images
@@ -316,7 +330,8 @@ def render_captures(design, *, repeats: int = 4, seed: int = 1000, progress: boo
                     white=whites, line=lines, checker=out["checker"],
                     checker_white=out["checker_white"], colorchecker=out["colorchecker"],
                     pattern_size=tuple(pattern), patch_radiance=radiance,
-                    patch_boxes=boxes.astype(np.int64), meta=meta)
+                    patch_boxes=boxes.astype(np.int64), meta=meta,
+                    noise_pair=out["noise_pair"])
 
 
 def comb_captures(design, period, *, repeats: int = 4, seed: int = 5000,

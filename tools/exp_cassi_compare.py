@@ -74,21 +74,26 @@ def downsample(cube: np.ndarray, factor: float) -> np.ndarray:
                   preserve_range=True).astype(np.float32)
 
 
-def noisy_measurement(op, truth_bm: np.ndarray, design, seed: int, noise: bool) -> np.ndarray:
-    r"""g = H f with the design's sensor noise at the frame's exposure, in units of H f.
+def noisy_measurement(op, truth_bm: np.ndarray, design, seed: int, noise: bool):
+    r"""(g, σ̄): g = H f with the design's sensor noise at the frame's exposure, in units of H f,
+    and its rms noise in those units (for the TV weight, as a calibration's photon-transfer
+    curve gives it for a rendered frame).
 
     The brightest measurement pixel is put at 80 % of the full well (as the renderer's auto
     exposure does), so in electrons :math:`N = \min(\text{Poisson}(s\,Hf), FW) + \mathcal N(0,
-    \sigma_r^2)`, and :math:`g = N / s`.
+    \sigma_r^2)`, :math:`g = N / s` and :math:`\bar\sigma = \sqrt{\overline{s\,Hf} +
+    \sigma_r^2}/s` (no ADC here).
     """
     g = np.asarray(op.forward(truth_bm), dtype=np.float32)
-    if not noise:
-        return g
     s = 0.8 * design.full_well_e / float(g.max())
+    sigma = float(np.sqrt(np.clip(g, 0, None).mean(dtype=np.float64) * s
+                          + design.read_noise_e ** 2) / s)
+    if not noise:
+        return g, sigma
     rng = np.random.default_rng(seed)
     e = np.minimum(rng.poisson(np.clip(g, 0, None) * s).astype(np.float64), design.full_well_e)
     e += rng.normal(0.0, design.read_noise_e, size=e.shape)
-    return (e / s).astype(np.float32)
+    return (e / s).astype(np.float32), sigma
 
 
 def oracle_run(design, n_views: int, inversion: bool, truth, wl, *, solver, iters, tau, seed,
@@ -100,9 +105,9 @@ def oracle_run(design, n_views: int, inversion: bool, truth, wl, *, solver, iter
     op = oracle_operator(design, n_views, inversion=inversion)
     peak = float(truth.max())
     truth_bm = np.ascontiguousarray(np.moveaxis(truth / peak, 2, 0), dtype=np.float32)
-    g = noisy_measurement(op, truth_bm, design, seed, noise)
+    g, sigma = noisy_measurement(op, truth_bm, design, seed, noise)
     # The same normalisation and TV weight as every reconstruction of kaleidospec.
-    cube, info = solve_views(op, g, n_views, solver=solver, iters=iters, tau=tau)
+    cube, info = solve_views(op, g, n_views, solver=solver, iters=iters, tau=tau, noise=sigma)
     return cube * np.float32(peak), info
 
 

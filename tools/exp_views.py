@@ -177,7 +177,7 @@ def run_scene(scene: str, design, cal, views, *, solver, iters, tau, seed, noise
     seed.  With ``history`` every row keeps the PSNR after each iteration (``psnr_history``,
     the oracle's too).  Every solve stops at ``iters`` iterations or once the relative change
     falls below ``tol``."""
-    from kaleidospec.evaluate import colorchecker_patches, patch_delta_e2000
+    from kaleidospec.evaluate import colorchecker_patches, patch_delta_e2000, patches_on_grid
     from kaleidospec.instrument import ground_truth, oracle_operator, render_scene
     from kaleidospec.models import truth_on_grid
     from kaleidospec.reconstruct import first_views, reconstruct_oracle, reconstruct_views
@@ -201,7 +201,8 @@ def run_scene(scene: str, design, cal, views, *, solver, iters, tau, seed, noise
         # truth moved onto the model's grid (info["truth_grid"]), not the design's square grid.
         grid = info["truth_grid"]
         row = {"views": n, **metrics_of(cube, grid, wl), "seconds": float(info.get("seconds", 0.0)),
-               "tau": finite(info.get("tau")), "iters": int(info.get("iters", iters))}
+               "tau": finite(info.get("tau")), "noise": finite(info.get("noise")),
+               "iters": int(info.get("iters", iters))}
         if patches:
             row["delta_e2000_patches"] = patch_delta_e2000(cube, grid, patches, wl)
         if history:
@@ -212,8 +213,12 @@ def run_scene(scene: str, design, cal, views, *, solver, iters, tau, seed, noise
                                               iters=iters, tol=tol, tau=tau, progress=progress,
                                               truth=truth if history else None)
             row["oracle"] = {**metrics_of(ocube, truth, wl),
+                             "tau": finite(oinfo.get("tau")), "noise": finite(oinfo.get("noise")),
                              "seconds": float(oinfo.get("seconds", 0.0)),
                              "iters": int(oinfo.get("iters", iters))}
+            if patches:
+                row["oracle"]["delta_e2000_patches"] = patch_delta_e2000(
+                    ocube, truth, list(patches_on_grid(design, truth.shape[:2]).values()), wl)
             if history:
                 row["oracle"]["psnr_history"] = [float(v) for v in oinfo["psnr_history"]]
         if retrace is not None:
@@ -229,6 +234,8 @@ def run_scene(scene: str, design, cal, views, *, solver, iters, tau, seed, noise
                  if "oracle" in row else "")
         if patches:
             extra += f"  ΔE00 per patch {fmt(row['delta_e2000_patches'])}"
+            if "oracle" in row:
+                extra += f" (oracle {fmt(row['oracle']['delta_e2000_patches'])})"
         if retrace is not None:
             extra += f"  retraced {fmt(row['retraced']['psnr'])} dB"
         print(f"  {scene_label(scene)}: {n} view(s)  PSNR {fmt(row['psnr'])} dB  "

@@ -29,8 +29,9 @@ def run(
     tol: float = typer.Option(1e-3, "--tol", help="Stop once the relative change "
                               "of the cube per iteration falls below this (0: run all "
                               "--iters)."),
-    tau: Optional[float] = typer.Option(None, "--tau", help="TV weight (default: the "
-                                        "solver's own)."),
+    tau: Optional[float] = typer.Option(None, "--tau", help="TV weight (default: "
+                                        "fista-tv and twist follow the noise the calibration "
+                                        "measured; gap-tv its own)."),
     seed: int = typer.Option(0, "--seed", help="Sensor-noise seed of the scene frame."),
     raw: Optional[Path] = typer.Option(None, "--raw", help="Reconstruct this raw frame (.exr "
                                        "+ sidecar) instead of rendering; the scene gives the "

@@ -61,7 +61,8 @@ def _options(kind: str):
         iters: Optional[int] = typer.Option(None, "--iters", help="Most solver iterations "
                                             "(default: kaleidospec run's, 400, stopping at "
                                             "a relative change below 1e-3)."),
-        tau: Optional[float] = typer.Option(None, "--tau", help="TV weight (solver default)."),
+        tau: Optional[float] = typer.Option(None, "--tau", help="TV weight (default: "
+                                            "follows the measured noise; gap-tv its own)."),
         seed: int = typer.Option(0, "--seed", help="Render/noise seed."),
         spp: int = typer.Option(8, "--spp", help="Samples per pixel of the measurement renders."),
         recon: bool = typer.Option(True, "--recon/--no-recon", help="Reconstruct at each point "

@@ -51,7 +51,8 @@ def video(
     solver: Optional[str] = typer.Option(None, "--solver", help="gap-tv (default), twist or "
                                          "fista-tv (the default with --operator oracle, or "
                                          "where the lens blurs over a pixel, e.g. paper)."),
-    tau: Optional[float] = typer.Option(None, "--tau", help="TV weight (solver default)."),
+    tau: Optional[float] = typer.Option(None, "--tau", help="TV weight (default: "
+                                        "follows the first frame's noise; gap-tv its own)."),
     temporal: float = typer.Option(0.0, "--temporal", help="Weight of the temporal TV term "
                                    "|f_t - f_(t-1)|_1 (0: off; gap-tv only)."),
     speed: Optional[float] = typer.Option(None, "--speed", help="Colour wheel speed, deg/s "

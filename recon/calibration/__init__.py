@@ -9,6 +9,7 @@ Works on raw frames only (NumPy, OpenCV, scikit-image), as with real hardware:
 - :mod:`~recon.calibration.geometry`: homographies to the centre view (checkerboard),
 - :mod:`~recon.calibration.extent`: view images that start where each view's light does,
 - :mod:`~recon.calibration.radiometry`: per-band gains (ColorChecker),
+- :mod:`~recon.calibration.noise`: the sensor's photon-transfer curve (a pair of frames),
 - :mod:`~recon.calibration.store`: one ``.npz`` + JSON file, cached by design hash,
 - :mod:`~recon.calibration.operator`: the calibrated operator and the per-view measurements.
 
@@ -24,6 +25,7 @@ from recon.calibration.geometry import (apply_homography, board_field, find_corn
                                         refine_homography, to_view_coordinates, unmask,
                                         view_homographies)
 from recon.calibration.mask import airy_kernel, airy_radius_px, mask_images, view_masks
+from recon.calibration.noise import noise_rms, photon_transfer
 from recon.calibration.operator import (check_design, measurements, operator_from_calibration,
                                         read_measurements)
 from recon.calibration.radiometry import apply_gains, fit_gains, patch_spectra
@@ -36,8 +38,9 @@ __all__ = [
     "apply_gains", "apply_homography", "band_mean_positions", "band_positions", "board_field",
     "build_calibration", "calibration_path", "check_design", "find_corners", "find_view_boxes",
     "fit_dispersion", "fit_gains", "lead_columns", "line_centroids", "load_cached",
-    "load_calibration", "mask_images", "measure_leads", "measurements", "normalise_offsets",
-    "normalise_offsets_phase", "operator_from_calibration", "patch_spectra", "read_measurements",
-    "refine_homography", "save_calibration", "to_view_coordinates", "unmask", "view_homographies",
-    "view_masks", "with_leads",
+    "load_calibration", "mask_images", "measure_leads", "measurements", "noise_rms",
+    "normalise_offsets", "normalise_offsets_phase", "operator_from_calibration",
+    "patch_spectra", "photon_transfer", "read_measurements", "refine_homography",
+    "save_calibration", "to_view_coordinates", "unmask", "view_homographies", "view_masks",
+    "with_leads",
 ]

@@ -53,6 +53,10 @@ checkerboard; :class:`~recon.operators.warp.DisplacementField` in view coordinat
 view_fields        (K, 2, T) float64  polynomial coefficients of each view's displacement
 view_field_frames  (K, 4) float64     their frames (x_c, y_c, s_x, s_y)
 =================  =================  ========================================================
+and, optionally (the sensor's photon-transfer curve, :mod:`~recon.calibration.noise`),
+===============  ==================  ===========================================================
+noise            (2,) float64        ``[a, b]``: a raw pixel's variance a·DN + b (DN²)
+===============  ==================  ===========================================================
 
 and ``<name>.json`` holds ``design_hash``, ``cube_shape`` ([H, W, L], the API layout),
 ``view_ids``, ``captures`` (what it was made from) and ``created`` (UTC, ISO 8601).  Both files
@@ -80,14 +84,14 @@ FORMAT = "kaleidospec-calibration"
 VERSION = 1
 #: Calibration code version (part of the cache key, :func:`calibration_path`): bump it when the
 #: capture renderer or the application's calibration steps (kaleidospec.calibrate) change.
-CODE_VERSION = 10
+CODE_VERSION = 11
 _CODE_VERSION: str | None = None
 ARRAY_FIELDS = ("view_boxes", "homographies", "mask_images", "offsets", "gains", "wavelengths")
 #: Arrays a calibration may hold (saved only when set).
 OPTIONAL_ARRAY_FIELDS = ("tap_start", "tap_weights", "view_masks", "smear_gains",
                          "footprint_grid", "footprint_indptr", "footprint_indices",
                          "footprint_data", "footprint_gains", "psf", "view_leads", "view_fields",
-                         "view_field_frames")
+                         "view_field_frames", "noise")
 _FOOTPRINT = ("footprint_grid", "footprint_indptr", "footprint_indices", "footprint_data")
 JSON_FIELDS = ("design_hash", "cube_shape", "view_ids", "captures", "created")
 _HASH_RE = re.compile(r"^[0-9A-Za-z_-]{1,128}$")
@@ -126,6 +130,7 @@ class Calibration:
     view_leads: np.ndarray | None = None
     view_fields: np.ndarray | None = None
     view_field_frames: np.ndarray | None = None
+    noise: np.ndarray | None = None
 
     def __post_init__(self):
         self.view_ids = check_view_ids(self.view_ids)
@@ -167,6 +172,10 @@ class Calibration:
                                  f"the view ({self.view_shape[1]} columns)")
             self.view_leads = leads.astype(np.int64)
         self._check_fields()
+        if self.noise is not None:
+            from recon.calibration.noise import check_noise_model
+
+            self.noise = check_noise_model(self.noise)
         if self.psf is not None:
             from recon.operators.blur import check_kernel
 

@@ -343,3 +343,26 @@ def test_default_solver_follows_the_calibrated_model(tmp_path):
         run_video("colorwheel", tmp_path / "p", design="paper", frames=2, temporal=0.1,
                   progress=False)
     assert not (tmp_path / "p").exists()
+
+
+def test_sequence_weight_is_the_first_frames(sequence, tmp_path):
+    """With FISTA-TV every segment solves with the first frame's noise-following weight (a
+    calibration with a photon-transfer curve), the fixed one without a curve; GAP-TV keeps its
+    own (None: the segments' solver default)."""
+    import dataclasses
+
+    from kaleidospec.reconstruct import Reconstructor, tv_weight
+    from kaleidospec.video import VideoLayout, sequence_weight
+    from recon.calibration import save_calibration
+    from recon.io.raw import read_raw
+
+    out, cal, settings = sequence
+    fista = dict(settings, solver="fista-tv", tau=None)
+    assert sequence_weight(out, dict(settings, solver="gap-tv")) is None
+    assert sequence_weight(out, fista) == pytest.approx(tv_weight("fista-tv", None, 2))
+    noisy = dataclasses.replace(cal, noise=[0.3, 5.0])
+    save_calibration(tmp_path / "noisy.npz", noisy)
+    got = sequence_weight(out, dict(fista, calibration=str(tmp_path / "noisy.npz")))
+    rec = Reconstructor.calibrated(noisy, 2, solver="fista-tv")
+    rec.measurement(*read_raw(VideoLayout(out).raw(0)))
+    assert got == pytest.approx(rec.tau) and got != pytest.approx(tv_weight("fista-tv", None, 2))

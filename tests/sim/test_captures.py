@@ -83,12 +83,27 @@ def test_repeats_average_the_noise():
     assert np.all(clean == np.round(clean))  # noise-free frames are still quantised DN
 
 
+def test_singles_are_the_repeats_before_averaging():
+    """``singles`` keeps the first repeats as read out (the photon-transfer pair): their mean
+    is the two-repeat capture, and their difference is pure sensor noise."""
+    d = get_design("small", OVR)
+    cube, _ = checker_target(d)
+    wl = d.wavelengths
+    pair = np.empty((2, d.sensor_height_px, d.sensor_width_px), np.float32)
+    mean, _ = capture(d, cube, wl, wavelength_nm=CHECKER_NM, repeats=2, seed=7, singles=pair)
+    np.testing.assert_allclose(0.5 * (pair[0] + pair[1]), mean, atol=1e-3)
+    assert np.all(pair == np.round(pair)) and not np.array_equal(pair[0], pair[1])
+    one, _ = capture(d, cube, wl, wavelength_nm=CHECKER_NM, repeats=1, seed=7)
+    np.testing.assert_array_equal(pair[0], one)     # the same draw as a one-repeat capture
+
+
 def test_render_captures_is_complete_and_tagged():
     from sim import transport
 
     d = get_design("small", OVR)
     before = set(transport._MEMO)
     caps = render_captures(d, repeats=1)
+    assert caps.noise_pair is None              # one repeat: no pair of single frames
     L = d.n_bands
     hs, ws = d.sensor_height_px, d.sensor_width_px
     assert caps.white.shape == caps.line.shape == (L, hs, ws)

@@ -323,3 +323,19 @@ def test_psf_saved_normalised_optional_and_validated(tmp_path):
     for bad in (np.ones((4, 4)), -np.ones((3, 3)), np.ones(3)):
         with pytest.raises(InputError):
             dataclasses.replace(cal, psf=bad)
+
+
+def test_noise_model_saved_optional_and_validated(tmp_path):
+    import dataclasses
+
+    rng = np.random.default_rng(31)
+    cal = _cal(rng)
+    assert cal.noise is None
+    with_noise = dataclasses.replace(cal, noise=[0.29, 5.6])
+    save_calibration(tmp_path / "noise.npz", with_noise)
+    back = load_calibration(tmp_path / "noise")
+    assert back.noise.dtype == np.float64
+    np.testing.assert_array_equal(back.noise, [0.29, 5.6])
+    for bad in ([0.0, 5.6], [0.29, -1.0], [0.29], [np.inf, 1.0]):
+        with pytest.raises(InputError, match="noise model"):
+            dataclasses.replace(cal, noise=bad)
