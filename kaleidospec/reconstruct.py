@@ -53,7 +53,7 @@ TAU_PER_VIEW = {"fista-tv": 0.005, "twist": 0.005}
 #: TV weight per view and per unit of the measurement's rms noise (unit-row-norm units), for the
 #: solvers whose data term is a least-squares fit: :math:`\tau = \kappa\, n\, \bar\sigma`.
 #: Chosen on a scene no reported figure uses (the colour wheel, ``small``, five views; see
-#: docs/figures.md): it gives ``small`` about 0.4 and ``paper`` about 1.5 times the fixed weight.
+#: docs/figures.md): it gives ``small`` 0.5-0.8 and ``paper`` about 2 times the fixed weight.
 TAU_PER_NOISE = {"fista-tv": 0.15, "twist": 0.15}
 
 
