@@ -18,7 +18,7 @@ def cache(shared_cache):
 #: seed.  Honest figures: no capture shares the frame's realisation (tests/sim/test_transport.py
 #: checks the realisations converge).  A change that moves one by more than TOLERANCE_DB, up or
 #: down, must say why (and update these).  Last moved by the TV weight that follows the noise
-#: (kaleidospec.reconstruct.TAU_PER_NOISE): at this size it is 0.26-0.40 times the fixed
+#: (kaleidospec.reconstruct.TAU_PER_NOISE): at this size it is 0.26-0.48 times the fixed
 #: weight of before, which this 6-band design with a piecewise-flat chart liked better at five
 #: views (shifted / footprint / oracle 26.38 / 30.25 / 30.70 then; one view 18.09 / 18.87 /
 #: 18.89).
