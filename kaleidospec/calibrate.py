@@ -310,10 +310,8 @@ def sensor_noise(design, caps):
     captures' pair of single frames; None without one (captures of fewer than 2 repeats)."""
     from recon.calibration.noise import photon_transfer
 
-    pair = getattr(caps, "noise_pair", None)
-    if pair is None:
-        return None
-    return photon_transfer(pair[0], pair[1], design.max_dn)
+    pair = caps.noise_pair
+    return None if pair is None else photon_transfer(pair[0], pair[1], design.max_dn)
 
 
 def _radiometry(design, caps, cal, model) -> np.ndarray:

@@ -116,7 +116,7 @@ def measurement_noise(g, metadata, noise_model):
 def design_noise(design) -> np.ndarray:
     r"""The photon-transfer curve ``[a, b]`` of ``design``'s own sensor (the exact operator's:
     no measurement): :math:`a = 1/G`, :math:`b = (\sigma_r/G)^2 + 1/12`, :math:`G` e⁻/DN."""
-    gain = float(design.full_well_e) / design.max_dn
+    gain = design.gain_e_per_dn
     return np.array([1.0 / gain, (float(design.read_noise_e) / gain) ** 2 + 1.0 / 12.0])
 
 

@@ -209,6 +209,10 @@ def reconstruct_segment(out_dir, start: int, stop: int, settings: dict, on_frame
     if not todo:
         return summary
     rec = _segment_reconstructor(settings)
+    if rec.tau is None:
+        # A weight that follows the noise is the first frame's in every segment, so that the
+        # sequence is solved with one weight whichever segment a frame falls in.
+        rec.measurement(*read_raw(lay.raw(0)))
     wl = np.asarray(settings["wavelengths"], np.float64)
     masker = sector_masker(settings.get("animation"))
     offset = None
@@ -237,7 +241,7 @@ def reconstruct_segment(out_dir, start: int, stop: int, settings: dict, on_frame
         rec_info = {"frame": i, "time_s": meta.get("time_s"), "warm": warm,
                     "iters": int(info["iters"]), "solve_seconds": float(info["wall_seconds"]),
                     "segment": [start, stop], "views": int(settings["views"]),
-                    "mu": float(info.get("mu", 0.0)), **m}
+                    "tau": float(info["tau"]), "mu": float(info.get("mu", 0.0)), **m}
         write_json(lay.metrics(i), rec_info, sort_keys=True)
         prev, prev_i = cube, i
         summary["done"] += 1
@@ -262,20 +266,6 @@ def _segment_reconstructor(settings: dict):
 
     return Reconstructor.calibrated(load_calibration(settings["calibration"]),
                                     settings["views"], **kw)
-
-
-def sequence_weight(out, settings: dict):
-    """The TV weight of the whole sequence where it follows the noise (FISTA-TV, TwIST): the
-    first frame's, so that every segment solves with the same one; None (each segment's
-    solver default) otherwise."""
-    from kaleidospec.reconstruct import TAU_PER_NOISE
-    from recon.io.raw import read_raw
-
-    if settings["solver"] not in TAU_PER_NOISE:
-        return None
-    rec = _segment_reconstructor(settings)
-    rec.measurement(*read_raw(VideoLayout(out).raw(0)))
-    return float(rec.tau)
 
 
 def plan_segments(n_frames: int, segment_frames: int) -> list[list[int]]:
@@ -609,8 +599,6 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
     else:
         calibrate(d, cache_dir=cache_dir, progress=progress)
         settings["calibration"] = str(calibration_file(d, cache_dir))
-    if tau is None:
-        settings["tau"] = sequence_weight(out, settings)
     rec_stats = reconstruct_sequence(out, n, segments, settings, workers=nworkers,
                                      scheduler=scheduler, progress=progress)
     summary = write_summary(out, n)

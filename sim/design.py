@@ -518,6 +518,11 @@ class Design:
         """Largest ADC code, 2**bit_depth − 1."""
         return (1 << self.bit_depth) - 1
 
+    @property
+    def gain_e_per_dn(self) -> float:
+        """The ADC's conversion gain (e⁻/DN): the full well reads as the top code."""
+        return float(self.full_well_e) / self.max_dn
+
     # ------------------------------------------------------------------ summary
     def derived(self) -> dict[str, Any]:
         """Derived quantities as a JSON-ready dict (see the module docstring for the formulas)."""

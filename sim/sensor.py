@@ -228,7 +228,7 @@ def digitise(
     if not np.all(np.isfinite(ne)) or np.any(ne < 0):
         raise InputError("electron counts must be finite and non-negative")
     fw = float(design.full_well_e)
-    gain = fw / design.max_dn  # e-/DN: the full well reads as the top code
+    gain = design.gain_e_per_dn
     if noise:
         if rng is None:
             rng = np.random.default_rng(seed)

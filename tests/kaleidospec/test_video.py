@@ -345,24 +345,38 @@ def test_default_solver_follows_the_calibrated_model(tmp_path):
     assert not (tmp_path / "p").exists()
 
 
-def test_sequence_weight_is_the_first_frames(sequence, tmp_path):
+def test_every_segment_takes_the_first_frames_weight(sequence, tmp_path):
     """With FISTA-TV every segment solves with the first frame's noise-following weight (a
     calibration with a photon-transfer curve), the fixed one without a curve; GAP-TV keeps its
-    own (None: the segments' solver default)."""
+    own.  The weight each frame was solved with is in its metrics."""
     import dataclasses
 
     from kaleidospec.reconstruct import Reconstructor, tv_weight
-    from kaleidospec.video import VideoLayout, sequence_weight
+    from kaleidospec.video import VideoLayout, reconstruct_segment
     from recon.calibration import save_calibration
     from recon.io.raw import read_raw
 
     out, cal, settings = sequence
-    fista = dict(settings, solver="fista-tv", tau=None)
-    assert sequence_weight(out, dict(settings, solver="gap-tv")) is None
-    assert sequence_weight(out, fista) == pytest.approx(tv_weight("fista-tv", None, 2))
+    lay = VideoLayout(out)
+
+    def taus(extra):
+        for i in (2, 3):
+            lay.cube(i).unlink(missing_ok=True)
+            lay.metrics(i).unlink(missing_ok=True)
+        reconstruct_segment(out, 2, 4, dict(settings, iters=2, cold_iters=2, **extra))
+        return [json.loads(lay.metrics(i).read_text())["tau"] for i in (2, 3)]
+
+    assert taus({"solver": "gap-tv", "tau": None}) == \
+        pytest.approx([tv_weight("gap-tv", None, 2)] * 2)
+    fista = {"solver": "fista-tv", "tau": None}
+    assert taus(fista) == pytest.approx([tv_weight("fista-tv", None, 2)] * 2)
     noisy = dataclasses.replace(cal, noise=[0.3, 5.0])
     save_calibration(tmp_path / "noisy.npz", noisy)
-    got = sequence_weight(out, dict(fista, calibration=str(tmp_path / "noisy.npz")))
-    rec = Reconstructor.calibrated(noisy, 2, solver="fista-tv")
-    rec.measurement(*read_raw(VideoLayout(out).raw(0)))
-    assert got == pytest.approx(rec.tau) and got != pytest.approx(tv_weight("fista-tv", None, 2))
+    got = taus(dict(fista, calibration=str(tmp_path / "noisy.npz")))
+    first = Reconstructor.calibrated(noisy, 2, solver="fista-tv")
+    first.measurement(*read_raw(lay.raw(0)))
+    own = Reconstructor.calibrated(noisy, 2, solver="fista-tv")
+    own.measurement(*read_raw(lay.raw(2)))
+    assert got == pytest.approx([first.tau] * 2)
+    assert first.tau != pytest.approx(tv_weight("fista-tv", None, 2))
+    assert own.tau != pytest.approx(first.tau, rel=1e-6)     # frame 2 alone would differ
