@@ -32,6 +32,11 @@ Outputs in ``--out`` (written atomically): ``exp_views.json`` (every number and 
 ``exp_views_srgb.png`` (the truth and each reconstruction as sRGB, per scene) and, with
 ``--history``, ``exp_views_history.png`` (PSNR against iterations).
 
+``--exact-masks`` is a diagnostic, never the product: the shifted model with the simulator's own
+mask images (:func:`exact_mask_images`: noise-free band-pass whites from the captures' trace,
+without the lens's diffraction, normalised like the calibration's) in place of the measured
+ones, so that the gap it closes is the most a better mask calibration could gain.
+
 Usage::
 
     python3 tools/exp_views.py                         # small design, natural + colorchecker
@@ -41,6 +46,7 @@ Usage::
     python3 tools/exp_views.py --design paper --oracle --oracle-views 5
     python3 tools/exp_views.py --design paper --views 1,2,3,5 [--no-leads] [--no-fields]
     python3 tools/exp_views.py --design paper --views 5 --scenes natural --iters 300 --history
+    python3 tools/exp_views.py --design paper --views 5 --scenes natural --exact-masks
 
 ``--design paper`` simulates the paper's full 3376×2704 sensor and 26 bands (minutes of
 transport and calibration; the exact operator takes 10–20 minutes a reconstruction on 2
@@ -248,6 +254,32 @@ def run_scene(scene: str, design, cal, views, *, solver, iters, tau, seed, noise
                 print_history("oracle", row["oracle"]["psnr_history"])
     return {"render_seconds": render_s, "rows": rows, "cube_shape": list(grid.shape)}, \
         (grid, wl, cubes)
+
+
+def exact_mask_images(design, cal) -> np.ndarray:
+    """The simulator's mask images for ``cal``'s views, as (K, L, Hv, Wm) float32 like
+    ``cal.mask_images``: every band's band-pass white integrated noise-free through the
+    captures' own trace without the Airy blur (what a perfect deconvolution of noise-free whites
+    would give), cropped to the calibration's boxes, divided by the bands' white levels, clipped
+    to [0, 1] and floored like :func:`kaleidospec.calibrate.calibrate_from_captures`'s."""
+    from kaleidospec.calibrate import MASK_FLOOR
+    from recon.calibration.mask import view_stack, white_levels
+    from scenes.calibration import white
+    from sim.frame import FrameModel
+    from sim.transport import SEEDS
+
+    wl = design.wavelengths
+    cube = white((design.view_size_px,) * 2, wl)
+    model = FrameModel(design, wl, trace_seed=SEEDS["captures"], diffraction=False)
+    out = np.empty(cal.mask_images.shape, np.float32)
+    band = np.zeros_like(cube)
+    for l in range(wl.size):
+        band[:, :, l] = cube[:, :, l]
+        out[:, l] = view_stack(model.electrons(band)[None], cal.view_boxes)[:, 0]
+        band[:, :, l] = 0.0
+    out /= white_levels(out).astype(np.float32)[None, :, None, None]
+    np.clip(out, 0.0, 1.0, out=out)
+    return np.where(out >= MASK_FLOOR, out, np.float32(0.0))
 
 
 def stop_rule(iters: int, tol, short: bool = False) -> str:
@@ -458,6 +490,9 @@ def main(argv=None) -> int:
     ap.add_argument("--no-fields", action="store_true",
                     help="shifted model: homographies only, without the views' displacement "
                          "fields (recon.calibration.board_field; for comparison)")
+    ap.add_argument("--exact-masks", action="store_true",
+                    help="shifted model: the simulator's noise-free, unblurred mask images in "
+                         "place of the calibration's (a diagnostic: what better masks could gain)")
     ap.add_argument("--history", action="store_true",
                     help="record the PSNR after every iteration (the oracle's too), print it at "
                          "25, 50, 100, 150, ... iterations and draw exp_views_history.png")
@@ -472,6 +507,9 @@ def main(argv=None) -> int:
             raise InputError("--views must be counts between 1 and 9")
         if a.iters < 1 or not a.tol >= 0:
             raise InputError("--iters must be >= 1 and --tol >= 0")
+        if a.exact_masks and a.model != "shifted":
+            raise InputError("--exact-masks replaces the shifted model's mask images: use it "
+                             "with --model shifted")
         oracle = a.oracle and (True if a.oracle_views is None
                                else set(parse_list(a.oracle_views, int)))
         scenes = parse_list(a.scenes)
@@ -506,6 +544,12 @@ def main(argv=None) -> int:
     if cal.view_fields is not None:
         print(f"view displacement fields (recon.calibration.board_field): measured"
               f"{' (dropped: --no-fields)' if a.no_fields else ''}", flush=True)
+    if a.exact_masks:
+        import dataclasses
+
+        cal = dataclasses.replace(cal, mask_images=exact_mask_images(design, cal))
+        print("mask images: the simulator's own, noise-free and unblurred (--exact-masks)",
+              flush=True)
     if a.no_leads or a.no_fields:
         import dataclasses
 
@@ -541,7 +585,7 @@ def main(argv=None) -> int:
         "design": a.design, "overrides": a.overrides, "design_hash": design.hash,
         "view_size_px": design.view_size_px, "wavelengths_nm": design.wavelengths,
         "solver": a.solver, "iters": a.iters, "tol": a.tol or None, "tau": a.tau,
-        "seed": a.seed, "model": a.model,
+        "seed": a.seed, "model": a.model, "exact_masks": a.exact_masks,
         "noise": not a.no_noise, "views": views, "calibration_seconds": cal_s,
         "scenes": results, "targets": targets,
     })
