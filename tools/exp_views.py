@@ -544,15 +544,13 @@ def main(argv=None) -> int:
     if cal.view_fields is not None:
         print(f"view displacement fields (recon.calibration.board_field): measured"
               f"{' (dropped: --no-fields)' if a.no_fields else ''}", flush=True)
-    if a.exact_masks:
-        import dataclasses
+    import dataclasses
 
+    if a.exact_masks:
         cal = dataclasses.replace(cal, mask_images=exact_mask_images(design, cal))
         print("mask images: the simulator's own, noise-free and unblurred (--exact-masks)",
               flush=True)
     if a.no_leads or a.no_fields:
-        import dataclasses
-
         if a.no_leads:
             cal = dataclasses.replace(cal, view_leads=None)
         if a.no_fields:
