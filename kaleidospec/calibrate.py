@@ -44,7 +44,7 @@ import numpy as np
 
 __all__ = ["MASK_FLOOR", "BOX_MARGIN_X", "DECONVOLVE_MIN_PX", "RADIOMETRY", "RADIOMETRY_VIEWS",
            "STEPS", "Measured", "calibrate", "calibrate_from_captures", "calibration_file",
-           "deconvolution_radii", "is_cached", "sensor_noise"]
+           "deconvolution_radii", "floor_chrome", "is_cached", "sensor_noise"]
 
 #: Calibrated mask values below this (fraction of the white level) are taken as chrome (0).
 MASK_FLOOR = 0.05
@@ -93,7 +93,7 @@ def _smeared(cal, m: Measured) -> dict:
 
     vm, vlevels = view_masks(m.captures.white, m.boxes, cal.tap_start, cal.tap_weights,
                              cal.view_shape[1], airy_radius=m.airy)
-    vm = np.where(vm >= MASK_FLOOR, vm, np.float32(0.0))
+    vm = floor_chrome(vm)
     return {"view_masks": vm, "smear_gains": m.exposures / vlevels}
 
 
@@ -242,11 +242,8 @@ def calibrate_from_captures(design, *, models=None, repeats: int = 4, progress: 
         bar.update()
         radii = airy_radius_px(wl, design.imaging_f_number, design.sensor_pixel_um)
         airy = deconvolution_radii(design, wl)
-        masks = mask_images(caps.white, boxes, airy_radius=airy, progress=progress)
-        # Chrome cells are not perfectly dark in a capture (stray light, the sensor's blur):
-        # values near zero would give measurement pixels with a tiny row norm, which GAP-TV's
-        # diag(HH^T)^-1 step amplifies without bound.  They are set to exactly zero.
-        masks = np.where(masks >= MASK_FLOOR, masks, np.float32(0.0))
+        masks = floor_chrome(mask_images(caps.white, boxes, airy_radius=airy,
+                                         progress=progress))
         bar.update()
         # The board's layout is what a lab knows from its target: read it from the sidecar.
         pattern = tuple(caps.meta["checker"]["pattern_size"])
@@ -303,6 +300,16 @@ def calibrate_from_captures(design, *, models=None, repeats: int = 4, progress: 
             prefix = "" if name == "shifted" else f"{name}-model "
             raise RuntimeError(f"radiometric calibration failed: {prefix}gains {g.tolist()}")
     return dataclasses.replace(cal, **{GAINS[m]: g for m, g in gains.items()})
+
+
+def floor_chrome(masks) -> np.ndarray:
+    """``masks`` with every value below :data:`MASK_FLOOR` set to exactly zero.
+
+    Chrome cells are not perfectly dark in a capture (stray light, the sensor's blur): values
+    near zero would give measurement pixels with a tiny row norm, which GAP-TV's
+    diag(HH^T)^-1 step amplifies without bound.
+    """
+    return np.where(masks >= MASK_FLOOR, masks, np.float32(0.0))
 
 
 def sensor_noise(design, caps):

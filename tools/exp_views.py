@@ -260,10 +260,11 @@ def exact_mask_images(design, cal) -> np.ndarray:
     """The simulator's mask images for ``cal``'s views, as (K, L, Hv, Wm) float32 like
     ``cal.mask_images``: every band's band-pass white integrated noise-free through the
     captures' own trace without the Airy blur (what a perfect deconvolution of noise-free whites
-    would give), cropped to the calibration's boxes, divided by the bands' white levels, clipped
-    to [0, 1] and floored like :func:`kaleidospec.calibrate.calibrate_from_captures`'s."""
-    from kaleidospec.calibrate import MASK_FLOOR
-    from recon.calibration.mask import view_stack, white_levels
+    would give), cropped to the calibration's boxes and normalised and floored as the
+    calibration's are (:func:`recon.calibration.mask.normalise_mask_images`,
+    :func:`kaleidospec.calibrate.floor_chrome`)."""
+    from kaleidospec.calibrate import floor_chrome
+    from recon.calibration.mask import normalise_mask_images, view_stack
     from scenes.calibration import white
     from sim.frame import FrameModel
     from sim.transport import SEEDS
@@ -277,9 +278,7 @@ def exact_mask_images(design, cal) -> np.ndarray:
         band[:, :, l] = cube[:, :, l]
         out[:, l] = view_stack(model.electrons(band)[None], cal.view_boxes)[:, 0]
         band[:, :, l] = 0.0
-    out /= white_levels(out).astype(np.float32)[None, :, None, None]
-    np.clip(out, 0.0, 1.0, out=out)
-    return np.where(out >= MASK_FLOOR, out, np.float32(0.0))
+    return floor_chrome(normalise_mask_images(out))
 
 
 def stop_rule(iters: int, tol, short: bool = False) -> str:

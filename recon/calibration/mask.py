@@ -174,6 +174,12 @@ def mask_images(white_captures, view_boxes, dark=None, airy_radius=None, rl_iter
     """
     views = white_views(white_captures, view_boxes, dark, airy_radius, rl_iterations, progress,
                         deconvolution, balance, tv_weight)
+    return normalise_mask_images(views, percentile)
+
+
+def normalise_mask_images(views: np.ndarray, percentile: float = 99.0) -> np.ndarray:
+    """(K, L, h, w) float32 white crops divided, in place, by their bands' white levels
+    (:func:`white_levels`, all views together) and clipped to [0, 1]: the mask images."""
     levels = white_levels(views, percentile=percentile)
     # In place: the (K, L, h, w) stack is the calibration's largest array (0.45 GB for five
     # paper views), so no second one is made.
