@@ -20,8 +20,11 @@ runs :mod:`recon.calibration` on them, as a lab would with its targets:
    default (:data:`RADIOMETRY` ``"flat"``) they come from the flat field: the band-pass whites
    are a source of known radiance (an integrating sphere's, in a lab), so a white's level per
    unit exposure is the gain of an open pixel (the comb targets' lit texels, of known radiance
-   too, give the footprint model's).  ``"colorchecker"`` refits them as the paper does: the
-   ColorChecker reconstructed with those gains, per-band least squares of its patches against
+   too, give the footprint model's); where the mask images are deconvolved and the model
+   blurs them again, the gains are those with which the model reproduces each white
+   (:func:`model_flat_gains`: a blurred white's level is not its deconvolution's).
+   ``"colorchecker"`` refits them as the paper does: the ColorChecker reconstructed with
+   those gains, per-band least squares of its patches against
    their reference radiance.  That refit is biased by the reconstruction itself (measured on
    ``small``, 5 views: it moves the gains by −12 % to +45 % and costs 1.3 dB (shifted) and
    1.8 dB (footprint) on the ColorChecker, 0.5 dB on the natural scene;
@@ -44,7 +47,8 @@ import numpy as np
 
 __all__ = ["MASK_FLOOR", "BOX_MARGIN_X", "DECONVOLVE_MIN_PX", "RADIOMETRY", "RADIOMETRY_VIEWS",
            "STEPS", "Measured", "calibrate", "calibrate_from_captures", "calibration_file",
-           "deconvolution_radii", "floor_chrome", "is_cached", "sensor_noise"]
+           "deconvolution_radii", "floor_chrome", "is_cached", "model_flat_gains",
+           "sensor_noise"]
 
 #: Calibrated mask values below this (fraction of the white level) are taken as chrome (0).
 MASK_FLOOR = 0.05
@@ -278,9 +282,15 @@ def calibrate_from_captures(design, *, models=None, repeats: int = 4, progress: 
         if airy is not None:
             # The masks are now sharp, but the lens blurs the coded image after the mask: the
             # shifted and smeared models blur their measurement with the diffraction-limited
-            # PSF again.  One PSF at the bands' mean radius (recon.operators.blur: on `paper`
-            # the same model error as one per band, 3.77 % against 3.75 % at 5 views).
+            # PSF again.  One PSF at the bands' mean radius: one a band (through a basis of
+            # two PSFs) reconstructed `paper`'s five views to 27.00 dB against 27.20, at twice
+            # the time (docs/figures.md, "Where the shifted model's error lies").
             cal = dataclasses.replace(cal, psf=airy_kernel(float(np.mean(airy))))
+            # Gains from the flat field through the model itself: the level of a blurred white
+            # is 0.94–0.96 of its deconvolution's on `paper` (expo / levels made the model 5–6 %
+            # too dark, every reconstruction as much too bright): `paper`, five views, natural,
+            # 26.55 -> 27.20 dB (recon.calibration.flat_field_gains).
+            cal = dataclasses.replace(cal, gains=model_flat_gains(cal, caps.white, boxes, expo))
         measured = Measured(design=design, captures=caps, boxes=boxes, centroids=cen, fit=fit,
                             radii=radii, airy=airy, intervals=intervals, exposures=expo,
                             repeats=repeats, progress=progress)
@@ -300,6 +310,26 @@ def calibrate_from_captures(design, *, models=None, repeats: int = 4, progress: 
             prefix = "" if name == "shifted" else f"{name}-model "
             raise RuntimeError(f"radiometric calibration failed: {prefix}gains {g.tolist()}")
     return dataclasses.replace(cal, **{GAINS[m]: g for m, g in gains.items()})
+
+
+def model_flat_gains(cal, white_captures, boxes, exposures) -> np.ndarray:
+    """(L,) the shifted model's gains with which it reproduces the white captures
+    (:func:`recon.calibration.flat_field_gains`; ``exposures``: the whites' exposure
+    factors)."""
+    from recon.calibration import flat_field_gains, operator_from_calibration
+    from recon.calibration.mask import view_stack
+
+    op = operator_from_calibration(cal, model="shifted")
+    x = np.zeros(op.ishape, np.float32)
+
+    def band_white(l):
+        x[l] = 1.0
+        try:
+            return op.forward(x)
+        finally:
+            x[l] = 0.0
+
+    return flat_field_gains(band_white, view_stack(white_captures, boxes), exposures)
 
 
 def floor_chrome(masks) -> np.ndarray:

@@ -8,7 +8,7 @@ Works on raw frames only (NumPy, OpenCV, scikit-image), as with real hardware:
   every view's mask in view coordinates from all of them jointly (the smeared model),
 - :mod:`~recon.calibration.geometry`: homographies to the centre view (checkerboard),
 - :mod:`~recon.calibration.extent`: view images that start where each view's light does,
-- :mod:`~recon.calibration.radiometry`: per-band gains (ColorChecker),
+- :mod:`~recon.calibration.radiometry`: per-band gains (ColorChecker; the flat field through a model),
 - :mod:`~recon.calibration.noise`: the sensor's photon-transfer curve (a pair of frames),
 - :mod:`~recon.calibration.store`: one ``.npz`` + JSON file, cached by design hash,
 - :mod:`~recon.calibration.operator`: the calibrated operator and the per-view measurements.
@@ -28,7 +28,7 @@ from recon.calibration.mask import airy_kernel, airy_radius_px, mask_images, vie
 from recon.calibration.noise import noise_rms, photon_transfer
 from recon.calibration.operator import (check_design, measurements, operator_from_calibration,
                                         read_measurements)
-from recon.calibration.radiometry import apply_gains, fit_gains, patch_spectra
+from recon.calibration.radiometry import apply_gains, fit_gains, flat_field_gains, patch_spectra
 from recon.calibration.store import (Calibration, build_calibration, calibration_path,
                                      load_cached, load_calibration, save_calibration)
 from recon.calibration.views import VIEW_FLIPS, VIEW_GRID, find_view_boxes
@@ -37,7 +37,7 @@ __all__ = [
     "Calibration", "DispersionFit", "VIEW_FLIPS", "VIEW_GRID", "airy_kernel", "airy_radius_px",
     "apply_gains", "apply_homography", "band_mean_positions", "band_positions", "board_field",
     "build_calibration", "calibration_path", "check_design", "find_corners", "find_view_boxes",
-    "fit_dispersion", "fit_gains", "lead_columns", "line_centroids", "load_cached",
+    "fit_dispersion", "fit_gains", "flat_field_gains", "lead_columns", "line_centroids", "load_cached",
     "load_calibration", "mask_images", "measure_leads", "measurements", "noise_rms",
     "normalise_offsets", "normalise_offsets_phase", "operator_from_calibration",
     "patch_spectra", "photon_transfer", "read_measurements", "refine_homography",

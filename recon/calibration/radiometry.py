@@ -100,3 +100,54 @@ def apply_gains(cube, gains) -> np.ndarray:
     if c.ndim != 3 or g.shape != (c.shape[2],):
         raise InputError(f"gains must have one value per band: cube {c.shape}, gains {g.shape}")
     return c * g
+
+
+def flat_field_gains(band_white, whites, exposures, margin: int = 10,
+                     floor: float = 0.05) -> np.ndarray:
+    r"""Per-band gains with which a calibrated model reproduces the flat field itself.
+
+    Band :math:`l`'s white of unit radiance reads :math:`d_l = W_l / e_l` (the captured view
+    crops over the capture's exposure factor); the model of that white with unit gains is
+    :math:`m_l = H 1_l`.  The gain is the :math:`c_l` for which :math:`m_l / c_l` fits
+    :math:`d_l` best in least squares,
+
+    .. math:: c_l = \frac{\langle m_l, m_l\rangle}{\langle m_l, d_l\rangle},
+
+    over the pixels where :math:`m_l` reaches ``floor`` × its maximum, ``margin`` pixels inside
+    the crops' edges (where a model's image ends, light from beyond the box may not).  Where the
+    model is the white itself (mask images that are the whites over their level) this is the
+    level's own gain; where the model blurs deconvolved mask images again, it is not: the
+    level of a blurred white is not the level of its deconvolution.
+
+    Parameters
+    ----------
+    band_white : callable
+        ``band_white(l)`` → (K, h, w) :math:`m_l`.
+    whites : (K, L, h, w) array_like
+        The whites' view crops (DN), the boxes the model measures.
+    exposures : (L,) array_like
+        :math:`e_l`, each white's exposure factor (radiance units per cube unit).
+
+    Returns
+    -------
+    (L,) float64
+    """
+    w = np.asarray(whites)
+    e = np.asarray(exposures, dtype=np.float64)
+    if w.ndim != 4 or e.shape != (w.shape[1],) or not np.all(e > 0):
+        raise InputError(f"whites (K, L, h, w) and L positive exposures, got {w.shape} and "
+                         f"{e.shape}")
+    if min(w.shape[2:]) <= 2 * margin:
+        raise InputError(f"crops of {w.shape[2:]} px leave nothing inside a {margin} px margin")
+    inner = (slice(None), slice(margin, -margin), slice(margin, -margin))
+    out = np.empty(w.shape[1])
+    for l in range(w.shape[1]):
+        m = np.asarray(band_white(l), dtype=np.float64)[inner]
+        d = w[:, l][inner].astype(np.float64) / e[l]
+        sel = m > floor * m.max()
+        num = float(np.vdot(m[sel], m[sel]))
+        den = float(np.vdot(m[sel], d[sel]))
+        if not (num > 0 and den > 0):
+            raise InputError(f"band {l}: the model of the white or the white itself is dark")
+        out[l] = num / den
+    return out
