@@ -69,7 +69,8 @@ def band_columns(cal, ids, x, kernels):
 
 
 def fitted_error(cols: np.ndarray, g: np.ndarray) -> float:
-    """min_a ‖g − Σ a_l cols_l‖/‖g‖ (per-band least-squares gains, float64 normal equations)."""
+    """min_a ‖g − Σ a_l cols_l‖/‖g‖: per-band least-squares gains, float64 normal
+    equations."""
     n = cols.shape[0]
     gram = np.empty((n, n))
     rhs = np.empty(n)

@@ -8,7 +8,8 @@ Works on raw frames only (NumPy, OpenCV, scikit-image), as with real hardware:
   every view's mask in view coordinates from all of them jointly (the smeared model),
 - :mod:`~recon.calibration.geometry`: homographies to the centre view (checkerboard),
 - :mod:`~recon.calibration.extent`: view images that start where each view's light does,
-- :mod:`~recon.calibration.radiometry`: per-band gains (ColorChecker; the flat field through a model),
+- :mod:`~recon.calibration.radiometry`: per-band gains (the flat field through a model;
+  the ColorChecker),
 - :mod:`~recon.calibration.noise`: the sensor's photon-transfer curve (a pair of frames),
 - :mod:`~recon.calibration.store`: one ``.npz`` + JSON file, cached by design hash,
 - :mod:`~recon.calibration.operator`: the calibrated operator and the per-view measurements.
@@ -37,8 +38,8 @@ __all__ = [
     "Calibration", "DispersionFit", "VIEW_FLIPS", "VIEW_GRID", "airy_kernel", "airy_radius_px",
     "apply_gains", "apply_homography", "band_mean_positions", "band_positions", "board_field",
     "build_calibration", "calibration_path", "check_design", "find_corners", "find_view_boxes",
-    "fit_dispersion", "fit_gains", "flat_field_gains", "lead_columns", "line_centroids", "load_cached",
-    "load_calibration", "mask_images", "measure_leads", "measurements", "noise_rms",
+    "fit_dispersion", "fit_gains", "flat_field_gains", "lead_columns", "line_centroids",
+    "load_cached", "load_calibration", "mask_images", "measure_leads", "measurements", "noise_rms",
     "normalise_offsets", "normalise_offsets_phase", "operator_from_calibration",
     "patch_spectra", "photon_transfer", "read_measurements", "refine_homography",
     "save_calibration", "to_view_coordinates", "unmask", "view_homographies", "view_masks",
