@@ -257,7 +257,9 @@ def calibrate_from_captures(design, *, models=None, repeats: int = 4, progress: 
         # Provisional gains from the whites (radiance E = 1 per band): the mask images are the
         # white captures divided by their white level w_l (DN at an open pixel), taken with
         # exposure s_l, so DN/s per unit radiance at an open pixel is w_l / s_l.
-        levels = white_levels(view_stack(caps.white, boxes))
+        # The crops once: the flat-field gains through the model below fit them again.
+        whites = view_stack(caps.white, boxes)
+        levels = white_levels(whites)
         expo = np.array([m["radiance_scale"] for m in caps.meta["white"]], dtype=np.float64)
         gains0 = expo / levels
         # The bands' wavelength intervals are the band-pass filters' (a lab knows them from
@@ -290,7 +292,8 @@ def calibrate_from_captures(design, *, models=None, repeats: int = 4, progress: 
             # is 0.94–0.96 of its deconvolution's on `paper` (expo / levels made the model 5–6 %
             # too dark, every reconstruction as much too bright): `paper`, five views, natural,
             # 26.55 -> 27.20 dB (recon.calibration.flat_field_gains).
-            cal = dataclasses.replace(cal, gains=model_flat_gains(cal, caps.white, boxes, expo))
+            cal = dataclasses.replace(cal, gains=model_flat_gains(cal, whites, expo))
+        del whites
         measured = Measured(design=design, captures=caps, boxes=boxes, centroids=cen, fit=fit,
                             radii=radii, airy=airy, intervals=intervals, exposures=expo,
                             repeats=repeats, progress=progress)
@@ -312,12 +315,11 @@ def calibrate_from_captures(design, *, models=None, repeats: int = 4, progress: 
     return dataclasses.replace(cal, **{GAINS[m]: g for m, g in gains.items()})
 
 
-def model_flat_gains(cal, white_captures, boxes, exposures) -> np.ndarray:
+def model_flat_gains(cal, whites, exposures) -> np.ndarray:
     """(L,) the shifted model's gains with which it reproduces the white captures
-    (:func:`recon.calibration.flat_field_gains`; ``exposures``: the whites' exposure
-    factors)."""
+    (:func:`recon.calibration.flat_field_gains`; ``whites``: their (K, L, h, w) crops to the
+    calibration's boxes, ``exposures``: their exposure factors)."""
     from recon.calibration import flat_field_gains, operator_from_calibration
-    from recon.calibration.mask import view_stack
 
     op = operator_from_calibration(cal, model="shifted")
     x = np.zeros(op.ishape, np.float32)
@@ -329,7 +331,7 @@ def model_flat_gains(cal, white_captures, boxes, exposures) -> np.ndarray:
         finally:
             x[l] = 0.0
 
-    return flat_field_gains(band_white, view_stack(white_captures, boxes), exposures)
+    return flat_field_gains(band_white, whites, exposures)
 
 
 def floor_chrome(masks) -> np.ndarray:

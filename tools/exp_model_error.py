@@ -114,11 +114,10 @@ def main(argv=None) -> int:
     if radii is None:
         kernels = {"no PSF": lambda l: None}
     else:
-        # One PSF at the bands' mean radius (the calibration's) and each band's own, cut at
+        # The calibration's one PSF (the bands' mean radius) and each band's own, cut at
         # three radii as the simulator's and the deconvolution's.
-        mean = airy_kernel(float(np.mean(radii))).astype(np.float32)
         per_band = [airy_kernel(float(r), support=3.0).astype(np.float32) for r in radii]
-        kernels = {"one PSF": lambda l: mean, "PSF per band": lambda l: per_band[l]}
+        kernels = {"one PSF": lambda l: cal.psf, "PSF per band": lambda l: per_band[l]}
     sim_masks = dataclasses.replace(cal, mask_images=exact_mask_images(design, cal))
     print(f"design {a.design} ({design.hash}), scene {a.scene} at {cube.shape[0]}x{cube.shape[1]}"
           f" texels; frames and simulator masks in {time.perf_counter() - t0:.0f} s", flush=True)
