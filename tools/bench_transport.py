@@ -28,6 +28,7 @@ Usage::
 
     python3 tools/bench_transport.py                     # both presets (~10 min)
     python3 tools/bench_transport.py --preset small --spp 256,1024,4096
+    python3 tools/bench_transport.py --preset paper --frames-only   # build and frame times
     python3 tools/bench_transport.py --spawn
 """
 
@@ -107,7 +108,7 @@ def convergence(d, tr, cube, wl, win, counts, pad):
     return sigma, float(np.mean(c)), rows, mc_bias2
 
 
-def bench(preset, counts, size, cache):
+def bench(preset, counts, size, cache, frames_only=False):
     from scenes.registry import get_scene
     from sim import transport
     from sim.design import get_design
@@ -141,6 +142,8 @@ def bench(preset, counts, size, cache):
         _, t_frame = best_of(lambda: model.electrons(cube))
         print(f"frame {scale}x ({scale * v} px scene): pixel integrals {t_int:.2f} s, with the "
               f"sensor model {t_frame:.2f} s")
+    if frames_only:
+        return
     cube, _ = get_scene("natural", (2 * v, 2 * v), wl)
     pad = 8
     print(f"convergence against Mitsuba's path tracer (stratified; electrons at the default "
@@ -208,6 +211,8 @@ def main() -> None:
     ap.add_argument("--window", type=int, default=24, help="window side (px)")
     ap.add_argument("--cache-dir", default=None, help="keep the traces here (default: temp)")
     ap.add_argument("--spawn", action="store_true", help="only the spawn_ray measurement")
+    ap.add_argument("--frames-only", action="store_true",
+                    help="build, load and frame times only (no convergence series)")
     a = ap.parse_args()
     if a.spawn:
         spawn()
@@ -217,7 +222,7 @@ def main() -> None:
         for p in presets:
             counts = ([int(x) for x in a.spp.split(",")] if a.spp else
                       [256, 1024, 4096] if p == "small" else [256, 1024])
-            bench(p, counts, a.window, a.cache_dir or tmp)
+            bench(p, counts, a.window, a.cache_dir or tmp, a.frames_only)
 
 
 if __name__ == "__main__":
