@@ -8,7 +8,8 @@ For each preset, from an empty cache folder:
   (the throughput images are computed on load);
 - **frame**: the expected frame of a scene at the view grid (1×) and at twice it (2×, the
   scenes' default), steady state (best of three), the pixel integrals alone and with the
-  sensor model (Airy blur, photo-electrons);
+  sensor model (Airy blur, photo-electrons), and the exact operator's forward and adjoint on
+  the same maps (one solver iteration of an "oracle" reconstruction);
 - **convergence**: in windows of the centre view and of the left view's vignetted outer
   columns, the frame's mean photo-electrons at the default exposure (brightest pixel at 80 %
   of the full well) against Mitsuba's path tracer (``kaleidospec_path``, stratified) at a
@@ -28,7 +29,7 @@ Usage::
 
     python3 tools/bench_transport.py                     # both presets (~10 min)
     python3 tools/bench_transport.py --preset small --spp 256,1024,4096
-    python3 tools/bench_transport.py --preset paper --frames-only   # build and frame times
+    python3 tools/bench_transport.py --preset paper --frames-only   # build, frame and operator times
     python3 tools/bench_transport.py --spawn
 """
 
@@ -142,6 +143,18 @@ def bench(preset, counts, size, cache, frames_only=False):
         _, t_frame = best_of(lambda: model.electrons(cube))
         print(f"frame {scale}x ({scale * v} px scene): pixel integrals {t_int:.2f} s, with the "
               f"sensor model {t_frame:.2f} s")
+    # The exact operator (the "oracle" reconstructions) on the same maps: one application each
+    # way is one solver iteration's optics.
+    from sim.oracle import ExactOperator
+
+    op = ExactOperator(d, tr, list(d.views))
+    x = get_scene("natural", (v, v), wl)[0].transpose(2, 0, 1).copy()
+    y = op.forward(x)
+    op.adjoint(y)
+    _, t_fwd = best_of(lambda: op.forward(x))
+    _, t_adj = best_of(lambda: op.adjoint(y))
+    print(f"exact operator ({len(d.views)} views, cube on the view grid): forward {t_fwd:.2f} s, "
+          f"adjoint {t_adj:.2f} s")
     if frames_only:
         return
     cube, _ = get_scene("natural", (2 * v, 2 * v), wl)
