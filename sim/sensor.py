@@ -38,6 +38,7 @@ __all__ = [
     "airy_kernel",
     "airy_blur",
     "blur_views",
+    "view_regions",
     "mean_electrons",
     "digitise",
     "capture",
@@ -153,6 +154,35 @@ def blur_views(image: np.ndarray, kernel: np.ndarray, rects, out: np.ndarray | N
         o0, p0 = max(r0 - k, 0), max(c0 - k, 0)
         o1, p1 = min(r0 + h + k, H), min(c0 + w + k, W)
         out[o0:o1, p0:p1] = sub[o0 - a0:o1 - a0, p0 - b0:p1 - b0]
+    return out
+
+
+def view_regions(rects, reach: int, shape) -> list[tuple[int, int, int, int]]:
+    """Disjoint rectangles ``(r0, r1, c0, c1)`` whose union is every view rectangle widened by
+    ``reach`` pixels on each side, within an image of ``shape``: where :func:`blur_views`
+    writes (``reach`` the kernel's half width), or the views themselves (``reach`` 0).
+
+    Neighbouring views' widened rectangles overlap (the ``paper`` views lie 0–1 px apart), so a
+    frame summed region by region must cover each pixel once: the union is cut at every
+    rectangle's top and bottom, and each horizontal strip's column spans merged.
+    """
+    H, W = (int(x) for x in shape)
+    reach = int(reach)
+    boxes = [(max(int(r0) - reach, 0), min(int(r0) + int(h) + reach, H),
+              max(int(c0) - reach, 0), min(int(c0) + int(w) + reach, W))
+             for r0, c0, h, w in rects]
+    boxes = [b for b in boxes if b[0] < b[1] and b[2] < b[3]]
+    cuts = sorted({b[0] for b in boxes} | {b[1] for b in boxes})
+    out = []
+    for ra, rb in zip(cuts[:-1], cuts[1:]):
+        spans = sorted((b[2], b[3]) for b in boxes if b[0] <= ra and rb <= b[1])
+        merged: list[list[int]] = []
+        for a, b in spans:
+            if merged and a <= merged[-1][1]:
+                merged[-1][1] = max(merged[-1][1], b)
+            else:
+                merged.append([a, b])
+        out.extend((ra, rb, a, b) for a, b in merged)
     return out
 
 

@@ -190,10 +190,11 @@ def each(fn, items):
     return [fn(i) for i in items]
 
 
-def ordered_sum(fn, items, out):
+def ordered_sum(fn, items, out, add=None):
     """``out += fn(item)`` for every item, ``fn`` on a thread per core, the sum always in the
     items' order (so a frame is the same to the last bit whichever thread finishes first, and
-    its noise draw too).  ``fn`` may return None (nothing).
+    its noise draw too).  ``fn`` may return None (nothing); ``add(out, part)``, when given,
+    takes the place of ``out += part`` (a part that covers only some of ``out``).
 
     The next item starts as soon as a thread is free and the sum is taken while the others
     work (NumPy releases the GIL): a thread never waits for the slowest item of a batch, nor
@@ -213,8 +214,12 @@ def ordered_sum(fn, items, out):
             nxt = next(it, _DONE)
             if nxt is not _DONE:
                 pending.append(pool.submit(fn, nxt))
-            if part is not None:
+            if part is None:
+                continue
+            if add is None:
                 out += part
+            else:
+                add(out, part)
     return out
 
 
