@@ -162,7 +162,7 @@ def view_regions(rects, reach: int, shape) -> list[tuple[int, int, int, int]]:
     ``reach`` pixels on each side, within an image of ``shape``: where :func:`blur_views`
     writes (``reach`` the kernel's half width), or the views themselves (``reach`` 0).
 
-    Neighbouring views' widened rectangles overlap (the ``paper`` views lie 0–1 px apart), so a
+    Neighbouring views' widened rectangles overlap (the ``paper`` views lie 1 px apart), so a
     frame summed region by region must cover each pixel once: the union is cut at every
     rectangle's top and bottom, and each horizontal strip's column spans merged.
     """
