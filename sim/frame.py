@@ -165,9 +165,7 @@ class FrameModel:
                 local.img = np.zeros(tr.sensor, np.float32)
                 local.blur = np.zeros(tr.sensor, np.float32) if self.kernels is not None \
                     else None
-            img = local.img
-            for k, (r0, c0, h, w) in enumerate(rects):
-                img[r0:r0 + h, c0:c0 + w] = tr.view_band(lhw[l], k, l)
+            img = tr.band(lhw[l], l, local.img)
             if self.kernels is None:
                 reach, src = 0, rects
             else:
