@@ -78,9 +78,9 @@ class FrameModel:
     .. math:: \bar N_e = \sum_l c_l\, (K_l * E_l), \qquad c_l = \eta(\lambda_l)\,
               \frac{\lambda_l}{hc}\, A_{px}\, t\, \Delta\lambda_l
 
-    (:func:`sim.sensor.electron_scale`, :func:`sim.sensor.blur_views`).  Bands run on a thread
-    per core, one band image in flight per thread; only the used views' rectangles are
-    integrated and blurred.
+    (:func:`sim.sensor.electron_scale`, :func:`sim.sensor.airy_kernel`).  Only the views are
+    integrated (all bands of a view at once, :mod:`sim.view_integral`) and only the pixels the
+    blur reaches from them are blurred, scaled and summed.
 
     Parameters
     ----------
@@ -101,7 +101,7 @@ class FrameModel:
                  wavelength_nm: float | None = None, trace_seed: int = 0,
                  diffraction: bool = True, progress: bool = False):
         from sim.bands import band_edges, band_intervals
-        from sim.sensor import airy_kernel, electron_scale
+        from sim.sensor import BlurredSum, airy_kernel, electron_scale
         from sim.transport import load_or_build
 
         wl = design.wavelengths if wavelengths is None else np.atleast_1d(
@@ -131,56 +131,44 @@ class FrameModel:
             self.kernels = [airy_kernel(float(design.airy_radius_um(lam)) / design.sensor_pixel_um)
                             for lam in self.bands_nm]
         self.rects = [design.view_rect(v) for v in self.transport.views]
+        self.blur = BlurredSum(self.kernels, self.scale)
 
     def electrons(self, cube) -> np.ndarray:
         """Mean photo-electrons (Hs, Ws) float32 of ``cube`` (H, W, L) for a radiance scale of 1.
 
-        Only the views' rectangles are integrated, and only the pixels the blur reaches from
-        them are blurred, scaled and summed (:func:`sim.sensor.view_regions`): on ``paper`` five
-        views cover 44 % of the sensor.  Each thread keeps one sensor-sized image for the band's
-        irradiance (the same rectangles written every band, so the rest stays zero) and one for
-        its blur, of which a band reads back only what it wrote: no band allocates, clears,
-        scales or adds a whole sensor.  The frame is the whole-sensor sum to the bit.
+        View by view: every lit band's irradiance in one pass over the view's rows
+        (:meth:`sim.transport.Transport.view_bands`, rows on threads), then the bands' blurs of
+        the view alone, weighted and summed by FFT (:class:`sim.sensor.BlurredSum`), added over
+        the view widened by the blur's reach.  The blur is linear, so the views' blurs add up
+        to the blur of the whole sensor; nothing depends on which thread finishes first, so a
+        frame is the same to the bit every time.  Dark bands are skipped: a band-pass capture
+        lights one.
         """
-        import threading
-
         from sim.bands import check_cube
-        from sim.sensor import blur_views, view_regions
-        from sim.transport import ordered_sum
 
         cube, _ = check_cube(self.design, cube, self.wavelengths)
         if self.source_band is not None:
             cube = cube[:, :, self.source_band:self.source_band + 1]
-        lhw = np.ascontiguousarray(np.moveaxis(cube, 2, 0))
         tr = self.transport
-        tr.prepare(range(lhw.shape[0]), lhw.shape[2])
-        rects = [tuple(int(v) for v in r) for r in tr.maps.rects]
-        regions = {}          # reach (kernel half width) → the pixels a band writes
-        local = threading.local()
-
-        def one(l):
-            if not lhw[l].any():
-                return None         # a band-pass capture lights one band
-            if not hasattr(local, "img"):
-                local.img = np.zeros(tr.sensor, np.float32)
-                local.blur = np.zeros(tr.sensor, np.float32) if self.kernels is not None \
-                    else None
-            img = tr.band(lhw[l], l, local.img)
-            if self.kernels is None:
-                reach, src = 0, rects
-            else:
-                img = blur_views(img, self.kernels[l], self.rects, out=local.blur)
-                reach, src = self.kernels[l].shape[0] // 2, self.rects
-            if reach not in regions:
-                regions[reach] = view_regions(src, reach, tr.sensor)
-            s = self.scale[l]
-            return [(reg, img[reg[0]:reg[1], reg[2]:reg[3]] * s) for reg in regions[reach]]
-
-        def add(total, parts):
-            for (r0, r1, c0, c1), part in parts:
-                total[r0:r1, c0:c1] += part
-
-        total = ordered_sum(one, range(lhw.shape[0]), np.zeros(tr.sensor, np.float32), add)
+        Hs, Ws = tr.sensor
+        total = np.zeros(tr.sensor, np.float32)
+        n_bands = cube.shape[2]
+        # Radiance is never negative (checked), so a band is lit where its maximum is.
+        lit = [int(l) for l in np.flatnonzero(cube.reshape(-1, n_bands).max(axis=0) > 0)]
+        if not lit:
+            return total
+        f = np.ascontiguousarray(cube if len(lit) == n_bands else cube[:, :, lit], np.float32)
+        tr.prepare(lit, f.shape[1])
+        R = self.blur.reach(lit)
+        irr = None
+        for k, rect in enumerate(tr.maps.rects):
+            r0, c0, h, w = (int(v) for v in rect)
+            irr = tr.view_bands(f, k, lit, out=irr)
+            part = self.blur(irr, lit)
+            a0, a1 = max(r0 - R, 0), min(r0 + h + R, Hs)
+            b0, b1 = max(c0 - R, 0), min(c0 + w + R, Ws)
+            o0, p0 = a0 - (r0 - R), b0 - (c0 - R)
+            total[a0:a1, b0:b1] += part[o0:o0 + a1 - a0, p0:p0 + b1 - b0]
         # Blur with zero padding leaves round-off around zero; charge is never negative.
         np.maximum(total, 0.0, out=total)
         return total

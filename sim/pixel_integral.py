@@ -33,7 +33,8 @@ between two wavelength nodes its x-edges move linearly.  The integral then separ
 Nothing is sampled: the result is the integral itself, up to the maps' fit (~10⁻³ px) and the
 straight-line motion of an edge between nodes (≤ ``tolerance_px`` of :func:`sim.maps.band_nodes`).
 :func:`band_forward` and its exact adjoint :func:`band_adjoint` (a dot test checks it) are
-Numba kernels for one view and one band; :class:`sim.transport.Transport` runs bands on threads.
+Numba kernels for one view and one band (the exact operator's); :mod:`sim.view_integral` takes
+every band of a view in one pass (the frames').
 :math:`G` and :math:`GG` are float64: they accumulate over a whole row (~2000 pieces on
 ``paper``) and the differences taken between neighbouring edges would lose every digit in
 float32.
@@ -218,8 +219,8 @@ def node_weights(n: int) -> np.ndarray:
     return w / w.sum()
 
 
-def throughput_images(maps, k: int, band_nodes) -> list:
-    r"""Every band's throughput τ at the pixel centres of view ``k``: (h, w) float32 each.
+def throughput_images(maps, k: int, band_nodes) -> np.ndarray:
+    r"""Every band's throughput τ at the pixel centres of view ``k``: (L, h, w) float32.
 
     τ is the mean over the band's wavelength nodes (trapezoid rule) of :math:`V\,T`
     (:mod:`sim.maps`).  T is smooth (a low-order polynomial) and is interpolated bilinearly
@@ -257,9 +258,9 @@ def throughput_images(maps, k: int, band_nodes) -> list:
                   float(np.abs(np.diff(slack, axis=1)).max(initial=0.0)))
         ok = slack > 2.0 * var
         clean[j] = ok[:-1, :-1] & ok[1:, :-1] & ok[:-1, 1:] & ok[1:, 1:]
-    out = []
+    out = np.empty((len(band_nodes), h, w), np.float32)
     fine = np.empty((h, w))
-    for nodes in band_nodes:
+    for l, nodes in enumerate(band_nodes):
         nodes = [int(j) for j in nodes]
         wts = node_weights(len(nodes))
         tavg = sum(wt * np.maximum(t_coarse[j], 0.0) for j, wt in zip(nodes, wts))
@@ -270,7 +271,7 @@ def throughput_images(maps, k: int, band_nodes) -> list:
             _exact_tau(pr, pc, np.ascontiguousarray(maps.throughput[k, nodes]),
                        np.ascontiguousarray(np.nan_to_num(maps.exit[k, nodes])), wts,
                        maps.stop_half, np.ascontiguousarray(todo), fine)
-        out.append(fine.astype(np.float32))
+        out[l] = fine
     return out
 
 
@@ -345,34 +346,31 @@ class RowGeometry:
         return float(xs.min()) - margin, float(xs.max()) + margin
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _poly_row(rv, c, colT, out):
+    """``out[e] = Σ_b (Σ_a rv[a] c[a, b]) colT[b, e]``: a polynomial folded with one row's
+    values ``rv`` first, then evaluated along the row (inner loops over columns)."""
+    D = c.shape[0]
+    for e in range(out.shape[0]):
+        out[e] = 0.0
+    for b in range(D):
+        cb = 0.0
+        for a in range(D):
+            cb += rv[a] * c[a, b]
+        for e in range(out.shape[0]):
+            out[e] += cb * colT[b, e]
+
+
 @njit(cache=True, nogil=True)
 def _row_edges(r, prc, pre, pceT, pccT, cx, cy, X, Y0, Y1, XC):
     """Mask-x of every pixel edge at every node (X, (n, w+1)), the footprints' y bounds (Y0, Y1)
-    and the pixels' centres in mask-x at the band's middle node (XC).  The polynomials are
-    folded with the row first, then evaluated along the row (inner loops over columns)."""
-    n, D = cx.shape[0], cx.shape[1]
+    and the pixels' centres in mask-x at the band's middle node (XC)."""
+    n = cx.shape[0]
     w = pccT.shape[1]
     for j in range(n):
-        for e in range(w + 1):
-            X[j, e] = 0.0
-        for b in range(D):
-            cb = 0.0
-            for a in range(D):
-                cb += prc[r, a] * cx[j, a, b]
-            for e in range(w + 1):
-                X[j, e] += cb * pceT[b, e]
-    for c in range(w):
-        Y0[c] = 0.0
-        Y1[c] = 0.0
-    for b in range(D):
-        ct = 0.0
-        cbot = 0.0
-        for a in range(D):
-            ct += pre[r, a] * cy[a, b]
-            cbot += pre[r + 1, a] * cy[a, b]
-        for c in range(w):
-            Y0[c] += ct * pccT[b, c]
-            Y1[c] += cbot * pccT[b, c]
+        _poly_row(prc[r], cx[j], pceT, X[j])
+    _poly_row(pre[r], cy, pccT, Y0)
+    _poly_row(pre[r + 1], cy, pccT, Y1)
     for c in range(w):
         if Y1[c] < Y0[c]:
             Y0[c], Y1[c] = Y1[c], Y0[c]
@@ -384,20 +382,12 @@ def _row_edges(r, prc, pre, pceT, pccT, cx, cy, X, Y0, Y1, XC):
             XC[c] = 0.25 * (X[jm - 1, c] + X[jm - 1, c + 1] + X[jm, c] + X[jm, c + 1])
 
 
-@njit(cache=True, nogil=True)
-def _row_pieces(Y0, Y1, ay, by, H, n_mask, plen, pmr, ptr_, bounds, pfirst, plast):
-    """Cut the row's y band at its mask-row and texel-row boundaries (lines shared by all its
-    pixels): each gap's mask row and texel row (−1 outside the mask or the cube), and every
-    pixel's share of its own span [Y0, Y1] in each gap, and the first and last gap it meets
-    (``pfirst``, ``plast``; its shares are 0 outside them); ``bounds`` (pmax + 1): scratch for
-    the gaps' edges.  Returns the number of gaps."""
-    w = Y0.shape[0]
-    pmax = plen.shape[1]
-    ylo = Y0[0]
-    yhi = Y1[0]
-    for c in range(w):
-        ylo = min(ylo, Y0[c])
-        yhi = max(yhi, Y1[c])
+@njit(cache=True, nogil=True, inline="always")
+def _row_gaps(ylo, yhi, ay, by, H, n_mask, pmr, ptr_, bounds):
+    """Cut [ylo, yhi] at the mask-row and texel-row boundaries: each gap's mask row and texel
+    row (−1 outside the mask or the cube) and its edges (``bounds``).  Returns the number of
+    gaps (at most ``pmr.shape[0]``)."""
+    pmax = pmr.shape[0]
     k = 0
     y = ylo
     bounds[0] = ylo
@@ -419,6 +409,22 @@ def _row_pieces(Y0, Y1, ay, by, H, n_mask, plen, pmr, ptr_, bounds, pfirst, plas
         k += 1
         bounds[k] = ye
         y = ye
+    return k
+
+
+@njit(cache=True, nogil=True)
+def _row_pieces(Y0, Y1, ay, by, H, n_mask, plen, pmr, ptr_, bounds, pfirst, plast):
+    """Cut the row's y band at its mask-row and texel-row boundaries (lines shared by all its
+    pixels, :func:`_row_gaps`), and every pixel's share of its own span [Y0, Y1] in each gap,
+    and the first and last gap it meets (``pfirst``, ``plast``; its shares are 0 outside
+    them); ``bounds`` (pmax + 1): scratch for the gaps' edges.  Returns the number of gaps."""
+    w = Y0.shape[0]
+    ylo = Y0[0]
+    yhi = Y1[0]
+    for c in range(w):
+        ylo = min(ylo, Y0[c])
+        yhi = max(yhi, Y1[c])
+    k = _row_gaps(ylo, yhi, ay, by, H, n_mask, pmr, ptr_, bounds)
     for c in range(w):
         y0, y1 = Y0[c], Y1[c]
         inv = 1.0 / (y1 - y0) if y1 > y0 else 0.0
@@ -434,6 +440,21 @@ def _row_pieces(Y0, Y1, ay, by, H, n_mask, plen, pmr, ptr_, bounds, pfirst, plas
         pfirst[c] = first
         plast[c] = last
     return k
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _row_span(X, xb):
+    """(lo, hi): the pieces of the partition ``xb`` that the row's edges ``X`` (n, w+1) reach
+    at any node (hi < lo: none)."""
+    w = X.shape[1] - 1
+    xmin = X[0, 0]
+    xmax = X[0, w]
+    for j in range(X.shape[0]):
+        xmin = min(xmin, X[j, 0])
+        xmax = max(xmax, X[j, w])
+    lo = max(np.searchsorted(xb, xmin, side="right") - 1, 0)
+    hi = min(np.searchsorted(xb, xmax, side="left"), xb.shape[0] - 2)
+    return lo, hi
 
 
 def max_pieces(relay, height: int) -> int:
@@ -522,13 +543,7 @@ def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pceT, pccT, cx
         if w < 2:
             pa[0] = 0
             pb[0] = ng
-        xmin = X[0, 0]
-        xmax = X[0, w]
-        for j in range(n):
-            xmin = min(xmin, X[j, 0])
-            xmax = max(xmax, X[j, w])
-        lo = max(np.searchsorted(xb, xmin, side="right") - 1, 0)
-        hi = min(np.searchsorted(xb, xmax, side="left"), nint - 1)
+        lo, hi = _row_span(X, xb)
         if hi < lo:
             continue
         if not adjoint:

@@ -1,4 +1,5 @@
-"""sim.frame: the expected frame summed view region by view region equals the whole-sensor sum."""
+"""sim.frame: the expected frame, taken view by view, equals the whole-sensor sum; the blurred sum
+over bands by FFT equals the direct blurs."""
 
 from __future__ import annotations
 
@@ -8,30 +9,47 @@ import pytest
 from sim import sensor
 
 
-def test_view_regions_cover_the_widened_views_once():
-    rects = [(2, 3, 10, 12), (13, 3, 10, 12), (2, 16, 21, 5), (40, 40, 10, 10), (0, 0, 1, 1)]
-    shape = (45, 48)
-    for reach in (0, 1, 3):
-        want = np.zeros(shape, bool)
-        for r0, c0, h, w in rects:
-            want[max(r0 - reach, 0):r0 + h + reach, max(c0 - reach, 0):c0 + w + reach] = True
-        count = np.zeros(shape, int)
-        for r0, r1, c0, c1 in sensor.view_regions(rects, reach, shape):
-            assert 0 <= r0 < r1 <= shape[0] and 0 <= c0 < c1 <= shape[1]
-            count[r0:r1, c0:c1] += 1
-        # Every widened view's pixel once (neighbours' margins overlap at reach ≥ 1), no other.
-        np.testing.assert_array_equal(count, want.astype(int))
-    assert sensor.view_regions([], 2, shape) == []
+def _direct(images, kernels, scales, R):
+    """Each image blurred directly (OpenCV, zero padding ``R``), weighted and summed."""
+    import cv2
+
+    h, w = images.shape[1:]
+    out = np.zeros((h + 2 * R, w + 2 * R), np.float32)
+    for img, k, s in zip(images, kernels, scales):
+        pad = cv2.copyMakeBorder(img, R, R, R, R, cv2.BORDER_CONSTANT, value=0.0)
+        out += np.float32(s) * cv2.filter2D(pad, -1, k, borderType=cv2.BORDER_CONSTANT)
+    return out
+
+
+def test_blurred_sum_is_the_sum_of_direct_blurs():
+    """The FFT's sum over bands against each band blurred directly and weighted: kernels of
+    different reach, a border the widest one fills; some bands only, each with its weight."""
+    rng = np.random.default_rng(5)
+    kernels = [sensor.airy_kernel(r) for r in (0.8, 1.6, 2.4)]
+    assert len({k.shape for k in kernels}) == 3
+    scales = np.array([1.0, 0.5, 2.0])
+    images = rng.random((3, 37, 52)).astype(np.float32)
+    blur = sensor.BlurredSum(kernels, scales)
+    for bands in ([0, 1, 2], [2, 0], [1]):
+        R = blur.reach(bands)
+        assert R == max(kernels[l].shape[0] // 2 for l in bands)
+        got = blur(images[bands], bands)
+        want = _direct(images[bands], [kernels[l] for l in bands], scales[bands], R)
+        assert got.shape == want.shape
+        np.testing.assert_allclose(got, want, rtol=0, atol=2e-6 * float(want.max()))
+    # No kernels: the weighted sum itself.
+    plain = sensor.BlurredSum(None, scales)(images, [0, 1, 2])
+    np.testing.assert_allclose(plain, np.tensordot(scales, images, 1), rtol=1e-6)
 
 
 @pytest.mark.mitsuba
 @pytest.mark.parametrize("diffraction", [True, False])
 def test_electrons_equal_the_whole_sensor_sum(shared_cache, diffraction):
-    """Nine views of ``small`` lie 2 px apart, so the blur's margins overlap: the frame summed
-    over the regions the views light must still be the whole-sensor sum of before, to the bit.
-    Six bands on at most two threads, the blur reaching 1 px in some and 2 px in others, and one
-    band dark: each thread's images serve several bands, and nothing of one may leak into the
-    next."""
+    """Nine views of ``small`` lie 2 px apart, so the blur's margins overlap: the frame, taken
+    view by view with every band at once and blurred by FFT, must be the whole-sensor sum of
+    every band's image, blurred directly, to the per-band kernel's agreement
+    (``tests/sim/test_view_integral.py``), and the same bits every time.  Six bands, the blur
+    reaching 1 px in some and 2 px in others, and one band dark."""
     pytest.importorskip("mitsuba")
     from sim.design import get_design
     from sim.frame import FrameModel
@@ -44,6 +62,7 @@ def test_electrons_equal_the_whole_sensor_sum(shared_cache, diffraction):
     cube = rng.random((v, v, wl.size)).astype(np.float32)
     cube[:, :, 2] = 0.0
     got = model.electrons(cube)
+    assert np.array_equal(model.electrons(cube), got)
 
     tr = model.transport
     want = np.zeros(tr.sensor, np.float32)
@@ -55,4 +74,10 @@ def test_electrons_equal_the_whole_sensor_sum(shared_cache, diffraction):
         want += img
     np.maximum(want, 0.0, out=want)
     assert got.max() > 0
-    assert np.array_equal(got, want)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-4 * float(want.max()))
+    # Dark where no view reaches, blur or not.
+    reach = max(k.shape[0] // 2 for k in model.kernels) if diffraction else 0
+    lit = np.zeros(tr.sensor, bool)
+    for r0, c0, h, w in (tuple(int(x) for x in r) for r in tr.maps.rects):
+        lit[max(r0 - reach, 0):r0 + h + reach, max(c0 - reach, 0):c0 + w + reach] = True
+    assert not got[~lit].any()

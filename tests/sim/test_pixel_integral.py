@@ -109,16 +109,6 @@ def _reference(f, code, view, relay, part, geom, tau, r):
     return out
 
 
-@pytest.fixture
-def small_transport(shared_cache):
-    """The `small` design's transport (seed 0), traced once into the shared test cache."""
-    pytest.importorskip("mitsuba")
-    from sim.design import get_design
-    from sim.transport import load_or_build
-
-    return load_or_build(get_design("small"), seed=0)
-
-
 @pytest.mark.mitsuba
 def test_kernel_matches_a_direct_sum_over_its_pieces(small_transport):
     tr = small_transport

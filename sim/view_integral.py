@@ -1,0 +1,374 @@
+r"""The pixel integral of every band of one view in one pass over its rows.
+
+:mod:`sim.pixel_integral` integrates one view in one band (:func:`~sim.pixel_integral.
+band_forward`, with its exact adjoint for the exact operator).  A frame needs every band, and
+most of what a band's pass computes does not depend on the band: the row's cut into y gaps at
+mask-row and texel-row boundaries, which mask cells are open, the scene's texel under each
+piece, and where each pixel edge lies among the pieces at each wavelength node.  This kernel
+computes those once per row and carries all bands along (the same maths as
+:mod:`sim.pixel_integral`; its notes give it):
+
+1. *Rows* (stage 1).  For each piece of the row's x partition and each band :math:`l`, the
+   mean over the footprint's height :math:`[y_0^l, y_1^l]` of :math:`M_k f_l`, summed over
+   the gaps :math:`[b_g, b_{g+1}]` that the piece's footprint meets,
+
+   .. math:: g_l(x) = \sum_g \frac{\big(\min(b_{g+1}, y_1^l) - \max(b_g, y_0^l)\big)_+}
+             {y_1^l - y_0^l}\, M_k(g, x)\, f_l(g, x),
+
+   the footprint's bounds at the piece taken from knots every :data:`KNOT` mask units (linear
+   between the pixel centres, then between knots: a bound moves by ~10⁻⁴ px from pixel to
+   pixel).  The inner loop runs over the bands, the scene being stored band-last.
+2. *Edges* (stage 2).  Every pixel edge is located among the pieces once per wavelength node
+   (a node at a band's end serves both bands), by a bucket table: buckets narrower than half
+   the texel pitch and a quarter mask unit hold at most three breakpoints, so three comparisons
+   added replace a walk whose branches mispredict.  Each band then takes its mean of
+   :math:`G = \int g` over each segment between nodes from :math:`GG = \int G`, as in
+   :mod:`sim.pixel_integral`.
+
+The result equals :func:`~sim.pixel_integral.band_forward` band by band to a few 10⁻⁵ of the
+view's peak (the footprints' y bounds are interpolated where that kernel interpolates the
+shares; both are exact to the maps' 10⁻⁴ px; ``tests/sim/test_view_integral.py``) and costs
+about what two or three bands cost there (``tools/bench_transport.py``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from sim.pixel_integral import _bracket, _poly_row, _row_gaps, _row_span, max_pieces
+
+__all__ = ["KNOT", "Buckets", "buckets", "view_forward"]
+
+#: Mask units between the knots at which every band's footprint bounds are interpolated.
+KNOT = 2.0
+
+
+class Buckets:
+    """A bucket table for locating points among the breakpoints ``xb`` of a partition.
+
+    ``start[b]`` is how many breakpoints lie at or below bucket ``b``'s left end
+    ``x0 + b / inv`` (less round-off); at most three more lie up to its right end, and
+    ``xbp`` is ``xb`` followed by
+    +∞, so that ``start[b] + Σ_{i<3} [xbp[start[b] + i] <= x]`` counts the breakpoints at or
+    below any ``x`` in the bucket.
+    """
+
+    def __init__(self, xbp, start, x0, inv):
+        self.xbp, self.start, self.x0, self.inv = xbp, start, float(x0), float(inv)
+
+
+def buckets(xb, texel_pitch: float) -> Buckets:
+    """:class:`Buckets` for the breakpoints ``xb`` (sorted) of a partition whose texel columns
+    are ``texel_pitch`` mask units wide."""
+    xb = np.asarray(xb, np.float64)
+    width = min(0.25, 0.5 * abs(float(texel_pitch)))
+    while True:
+        x0 = float(xb[0]) - width     # one bucket before the first breakpoint: start[0] = 0
+        n = int((float(xb[-1]) - x0) / width) + 3
+        # A point's bucket is computed in floating point and may be the next one when the
+        # point lies within round-off below a bucket's end: each bucket's start leaves out
+        # the breakpoints within ``eps`` below its left end, and counts them by comparison.
+        eps = 1e-7 * width
+        left = x0 + width * np.arange(n + 1)
+        start = np.searchsorted(xb, left - eps, side="right")
+        inside = np.searchsorted(xb, left[1:] + eps, side="right") - start[:-1]
+        if inside.max(initial=0) <= 3:
+            break
+        width *= 0.5                  # breakpoints bunched closer than the pitches suggest
+    xbp = np.concatenate([xb, np.full(4, np.inf)])
+    return Buckets(xbp, start[:-1].astype(np.int64), x0, 1.0 / width)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _count(x, xbp, start, x0, inv):
+    """How many breakpoints lie at or below ``x`` (:class:`Buckets`)."""
+    b = min(max(int((x - x0) * inv), 0), start.shape[0] - 1)
+    p = start[b]
+    return p + (xbp[p] <= x) + (xbp[p + 1] <= x) + (xbp[p + 2] <= x)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, pre, pceT,
+            pccT, cxn, cyl, boff, bnodes, bands, tau, out, r_start, r_end, pmax, stats):
+    w = pccT.shape[1]
+    N = cxn.shape[0]
+    L = cyl.shape[0]
+    nint = mcol.shape[0]
+    ay, by = relay[2], relay[3]
+    X = np.empty((N, w + 1))
+    Y0 = np.empty((L, w))
+    Y1 = np.empty((L, w))
+    XC = np.empty(w)
+    IXC = np.zeros(w)
+    nk = int((xb[nint] - xb[0]) / KNOT) + 3
+    yk0 = np.empty((nk, L))
+    yk1 = np.empty((nk, L))
+    gk_lo = np.zeros(nk, np.int64)
+    gk_hi = np.zeros(nk, np.int64)
+    xc_first = np.empty(L)
+    xc_last = np.empty(L)
+    y0 = np.empty(L)
+    y1 = np.empty(L)
+    inv_h = np.empty(L)
+    acc = np.empty(L)
+    g = np.zeros((nint, L))
+    G = np.zeros((nint + 1, L))
+    GG = np.zeros((nint + 1, L))
+    T = np.empty((L, nint + 3, 3))
+    xs = np.empty(nint + 3)
+    KI = np.empty((N, w + 1), np.int64)
+    nmax = 1
+    for l in range(L):
+        nmax = max(nmax, boff[l + 1] - boff[l])
+    GN = np.empty((nmax, w + 1))
+    mG = np.empty((nmax, w + 1))
+    accv = np.empty(w)
+    bounds = np.empty(pmax + 1)
+    pmr = np.zeros(pmax, np.int64)
+    ptr_ = np.zeros(pmax, np.int64)
+    n_mask = code.shape[0]
+    for r in range(r_start, r_end):
+        for l in range(L):
+            for c in range(w):
+                out[l, r, c] = 0.0
+        # The pixel edges' mask x at every node, every band's footprint bounds in mask y at
+        # the pixel centres, and the row's y gaps (shared by every band and pixel).
+        for j in range(N):
+            _poly_row(prc[r], cxn[j], pceT, X[j])
+        ylo = np.inf
+        yhi = -np.inf
+        for l in range(L):
+            _poly_row(pre[r], cyl[l], pccT, Y0[l])
+            _poly_row(pre[r + 1], cyl[l], pccT, Y1[l])
+            for c in range(w):
+                if Y1[l, c] < Y0[l, c]:
+                    Y0[l, c], Y1[l, c] = Y1[l, c], Y0[l, c]
+                ylo = min(ylo, Y0[l, c])
+                yhi = max(yhi, Y1[l, c])
+        ng = _row_gaps(ylo, yhi, ay, by, H, n_mask, pmr, ptr_, bounds)
+        if ng > 0 and bounds[ng] < yhi:
+            stats[1] += 1             # more gaps than the scratch holds (a caller's error)
+        stats[0] = max(stats[0], ng)
+        lo, hi = _row_span(X, xb)
+        if hi < lo:
+            continue
+        # Knots along mask x: every band's bounds there, and the gaps any band meets between
+        # two knots.
+        # Knots from the partition's start (not the row's), so a band's bounds do not depend
+        # on which other bands are integrated with it.
+        xk = xb[0]
+        qa = int((xb[lo] - xk) / KNOT)
+        nq = min(int((xb[hi + 1] - xk) / KNOT) + 2, nk)
+        for l in range(L):
+            n = boff[l + 1] - boff[l]
+            jm0 = bnodes[boff[l] + (n - 1) // 2]
+            jm1 = bnodes[boff[l] + n // 2]
+            for c in range(w):
+                XC[c] = 0.25 * (X[jm0, c] + X[jm0, c + 1] + X[jm1, c] + X[jm1, c + 1])
+            for c in range(w - 1):
+                IXC[c] = 1.0 / (XC[c + 1] - XC[c])
+            # Knots carry the line through the end pixels' centres beyond them (not clamped),
+            # so that interpolating between knots keeps it; the clamp to the end pixels'
+            # bounds is applied piece by piece, where the per-band kernel applies it.
+            c = 0
+            for q in range(qa, nq):
+                xq = xk + q * KNOT
+                c, t = _bracket(xq, XC, IXC, c)
+                c1 = min(c + 1, w - 1)
+                if w > 1:
+                    t = (xq - XC[c]) * IXC[c]
+                yk0[q, l] = Y0[l, c] + t * (Y0[l, c1] - Y0[l, c])
+                yk1[q, l] = Y1[l, c] + t * (Y1[l, c1] - Y1[l, c])
+            xc_first[l] = XC[0]
+            xc_last[l] = XC[w - 1]
+        for q in range(qa, nq - 1):
+            a = np.inf
+            b = -np.inf
+            xa = xk + q * KNOT
+            for l in range(L):
+                a = min(a, yk0[q, l], yk0[q + 1, l])
+                b = max(b, yk1[q, l], yk1[q + 1, l])
+                if xa <= xc_first[l]:
+                    a = min(a, Y0[l, 0])
+                    b = max(b, Y1[l, 0])
+                if xa + KNOT >= xc_last[l]:
+                    a = min(a, Y0[l, w - 1])
+                    b = max(b, Y1[l, w - 1])
+            first = ng
+            last = -1
+            for p in range(ng):
+                if bounds[p + 1] > a and bounds[p] < b:
+                    first = min(first, p)
+                    last = p
+            gk_lo[q] = first
+            gk_hi[q] = last + 1
+        xf_max = -np.inf
+        xl_min = np.inf
+        for l in range(L):
+            xf_max = max(xf_max, xc_first[l])
+            xl_min = min(xl_min, xc_last[l])
+        # Stage 1: every band's g on every piece, then G and GG.
+        for l in range(L):
+            G[lo, l] = 0.0
+            GG[lo, l] = 0.0
+        for i in range(lo, hi + 1):
+            for l in range(L):
+                acc[l] = 0.0
+            mc = mcol[i]
+            tc = tcol[i]
+            if mc >= 0 and tc >= 0:
+                u = (0.5 * (xb[i] + xb[i + 1]) - xk) / KNOT
+                q = min(max(int(u), qa), nq - 2)
+                t = u - q
+                xm = 0.5 * (xb[i] + xb[i + 1])
+                for l in range(L):
+                    y0[l] = yk0[q, l] + t * (yk0[q + 1, l] - yk0[q, l])
+                    y1[l] = yk1[q, l] + t * (yk1[q + 1, l] - yk1[q, l])
+                if xm <= xf_max or xm >= xl_min:
+                    # Beyond a band's end pixel centres its bounds are the end pixel's.
+                    for l in range(L):
+                        if xm <= xc_first[l]:
+                            y0[l] = Y0[l, 0]
+                            y1[l] = Y1[l, 0]
+                        if xm >= xc_last[l]:
+                            y0[l] = Y0[l, w - 1]
+                            y1[l] = Y1[l, w - 1]
+                for l in range(L):
+                    inv_h[l] = 1.0 / (y1[l] - y0[l]) if y1[l] > y0[l] else 0.0
+                for p in range(gk_lo[q], gk_hi[q]):
+                    mr = pmr[p]
+                    tr = ptr_[p]
+                    if mr >= 0 and tr >= 0 and code[mr, mc] == view:
+                        ba = bounds[p]
+                        bb = bounds[p + 1]
+                        for l in range(L):
+                            s = min(bb, y1[l]) - max(ba, y0[l])
+                            acc[l] += max(s, 0.0) * inv_h[l] * f[tr, tc, l]
+            Lp = xb[i + 1] - xb[i]
+            for l in range(L):
+                g[i, l] = acc[l]
+                GG[i + 1, l] = GG[i, l] + G[i, l] * Lp + 0.5 * acc[l] * Lp * Lp
+                G[i + 1, l] = G[i, l] + acc[l] * Lp
+        # Every edge located once per node: KI = its piece, clamped to [lo − 1, hi + 1],
+        # less lo − 1 (an index into T).
+        for j in range(N):
+            for e in range(w + 1):
+                p = _count(X[j, e], xbp, start, x0, inv) - 1
+                KI[j, e] = min(max(p, lo - 1), hi + 1) - lo + 1
+        # Band-major tables (g, G, GG) by that index: row 0 before the row's pieces (all 0),
+        # the last past them (G and GG carried on, g = 0), so every edge evaluates alike.
+        nb_ = hi - lo + 2
+        for l in range(L):
+            T[l, 0, 0] = 0.0
+            T[l, 0, 1] = 0.0
+            T[l, 0, 2] = 0.0
+        for i in range(lo, hi + 1):
+            for l in range(L):
+                T[l, i - lo + 1, 0] = g[i, l]
+                T[l, i - lo + 1, 1] = G[i, l]
+                T[l, i - lo + 1, 2] = GG[i, l]
+        for l in range(L):
+            T[l, nb_, 0] = 0.0
+            T[l, nb_, 1] = G[hi + 1, l]
+            T[l, nb_, 2] = GG[hi + 1, l]
+        xs[0] = 0.0
+        for i in range(1, nb_ + 1):
+            xs[i] = xb[lo + i - 1]
+        # Stage 2, band by band: GG at every edge and node, its mean G over each segment, the
+        # pixels' sums.
+        for l in range(L):
+            b0 = boff[l]
+            n = boff[l + 1] - b0
+            nseg = max(n - 1, 1)
+            for jj in range(n):
+                j = bnodes[b0 + jj]
+                for e in range(w + 1):
+                    p = KI[j, e]
+                    d = X[j, e] - xs[p]
+                    GN[jj, e] = T[l, p, 2] + d * (T[l, p, 1] + 0.5 * d * T[l, p, 0])
+            if n == 1:
+                # A monochromatic band: G at the edge itself.
+                j = bnodes[b0]
+                for e in range(w + 1):
+                    p = KI[j, e]
+                    mG[0, e] = T[l, p, 1] + (X[j, e] - xs[p]) * T[l, p, 0]
+            else:
+                for s in range(nseg):
+                    js = bnodes[b0 + s]
+                    jt = bnodes[b0 + s + 1]
+                    bad = False
+                    for e in range(w + 1):
+                        dx = X[jt, e] - X[js, e]
+                        mG[s, e] = (GN[s + 1, e] - GN[s, e]) / dx
+                        bad |= not abs(dx) > 1e-9
+                    if bad:
+                        # Coinciding nodes: G at the edge.
+                        for e in range(w + 1):
+                            if not abs(X[jt, e] - X[js, e]) > 1e-9:
+                                xm = 0.5 * (X[js, e] + X[jt, e])
+                                p = _count(xm, xbp, start, x0, inv) - 1
+                                p = min(max(p, lo - 1), hi + 1) - lo + 1
+                                mG[s, e] = T[l, p, 1] + (xm - xs[p]) * T[l, p, 0]
+            for c in range(w):
+                accv[c] = 0.0
+            for s in range(nseg):
+                js = bnodes[b0 + s]
+                jt = bnodes[b0 + min(s + 1, n - 1)]
+                for c in range(w):
+                    wid = 0.5 * ((X[js, c + 1] - X[js, c]) + (X[jt, c + 1] - X[jt, c]))
+                    accv[c] += (mG[s, c + 1] - mG[s, c]) / wid
+            bl = bands[l]
+            for c in range(w):
+                out[l, r, c] = tau[bl, r, c] * accv[c] / nseg
+
+
+def view_forward(f, code, view, relay, part, bucket: Buckets, geom, cxn, cyl, band_nodes,
+                 bands, tau, out, rows=None):
+    """Irradiance (La, h, w) float32 of one view in the bands ``bands`` (rows ``rows``).
+
+    Parameters
+    ----------
+    f : (H, W, La) float32
+        The scene's bands ``bands``, band-last.
+    code : (n, n) int8
+        The view owning each open mask cell (−1 chrome).
+    view : int
+    relay : (4,)
+        The view's mask → scene map (:func:`sim.pixel_integral.partition`).
+    part : (xb, mcol, tcol)
+        :func:`sim.pixel_integral.partition` of the view for the cube's width.
+    bucket : Buckets
+        :func:`buckets` of ``xb``.
+    geom : sim.pixel_integral.RowGeometry
+        Of the view (its row and column polynomials; its band's own fields are not read).
+    cxn : (N, D, D)
+        The mask-x polynomial at the nodes the bands use.
+    cyl : (La, D, D)
+        Each band's mask-y polynomial averaged over its nodes.
+    band_nodes : list of int arrays
+        Each band's nodes, as indices into ``cxn``.
+    bands : (La,) int
+        Each band's index into ``tau``.
+    tau : (L, h, w) float32
+        The view's throughput in every band.
+    out : (La, h, w) float32
+        Written at ``rows`` (all rows by default).
+    """
+    xb, mcol, tcol = part
+    f = np.asarray(f)
+    if f.dtype != np.float32 or not f.flags.c_contiguous or f.ndim != 3:
+        raise ValueError("f must be a C-contiguous (H, W, L) float32 array")
+    r0, r1 = (0, geom.h) if rows is None else (int(rows[0]), int(rows[1]))
+    boff = np.concatenate([[0], np.cumsum([len(b) for b in band_nodes])]).astype(np.int64)
+    bnodes = np.concatenate([np.asarray(b, np.int64) for b in band_nodes])
+    stats = np.zeros(2, np.int64)
+    pmax = max_pieces(relay, f.shape[0]) + 16
+    _kernel(f, code, int(view), np.asarray(relay, np.float64), f.shape[0], xb, mcol, tcol,
+            bucket.xbp, bucket.start, bucket.x0, bucket.inv, geom.prc, geom.pre, geom.pceT,
+            geom.pccT, np.ascontiguousarray(cxn, np.float64),
+            np.ascontiguousarray(cyl, np.float64), boff, bnodes,
+            np.asarray(bands, np.int64), tau, out, r0, r1, pmax, stats)
+    if stats[1]:
+        raise RuntimeError(f"{int(stats[1])} rows have more y gaps than the {pmax} expected")
+    return out
