@@ -15,9 +15,10 @@ computes those once per row and carries all bands along (the same maths as
    .. math:: g_l(x) = \sum_g \frac{\big(\min(b_{g+1}, y_1^l) - \max(b_g, y_0^l)\big)_+}
              {y_1^l - y_0^l}\, M_k(g, x)\, f_l(g, x),
 
-   the footprint's bounds at the piece taken from knots every :data:`KNOT` mask units (linear
-   between the pixel centres, then between knots: a bound moves by ~10⁻⁴ px from pixel to
-   pixel).  The inner loop runs over the bands, the scene being stored band-last.
+   the footprint's bounds at the piece taken from knots every :data:`KNOT` mask units (on the
+   line between the pixel centres, then linear between knots: a bound moves by ~10⁻⁴ px from
+   pixel to pixel; beyond a band's end pixels, their bounds).  The inner loop runs over the
+   bands, the scene being stored band-last.
 2. *Edges* (stage 2).  Every pixel edge is located among the pieces once per wavelength node
    (a node at a band's end serves both bands), by a bucket table: buckets narrower than half
    the texel pitch and a quarter mask unit hold at most three breakpoints, so three comparisons
@@ -27,8 +28,8 @@ computes those once per row and carries all bands along (the same maths as
 
 The result equals :func:`~sim.pixel_integral.band_forward` band by band to a few 10⁻⁵ of the
 view's peak (the footprints' y bounds are interpolated where that kernel interpolates the
-shares; both are exact to the maps' 10⁻⁴ px; ``tests/sim/test_view_integral.py``) and costs
-about what two or three bands cost there (``tools/bench_transport.py``).
+shares; both are exact to the maps' 10⁻⁴ px; ``tests/sim/test_view_integral.py``) and, on
+``paper``, costs about half of what its 26 bands cost there (``tools/bench_transport.py``).
 """
 
 from __future__ import annotations
@@ -48,10 +49,9 @@ class Buckets:
     """A bucket table for locating points among the breakpoints ``xb`` of a partition.
 
     ``start[b]`` is how many breakpoints lie at or below bucket ``b``'s left end
-    ``x0 + b / inv`` (less round-off); at most three more lie up to its right end, and
-    ``xbp`` is ``xb`` followed by
-    +∞, so that ``start[b] + Σ_{i<3} [xbp[start[b] + i] <= x]`` counts the breakpoints at or
-    below any ``x`` in the bucket.
+    ``x0 + b / inv`` (less round-off); at most three more lie up to its right end, and ``xbp``
+    is ``xb`` followed by +∞, so that ``start[b] + Σ_{i<3} [xbp[start[b] + i] <= x]`` counts
+    the breakpoints at or below any ``x`` in the bucket.
     """
 
     def __init__(self, xbp, start, x0, inv):
@@ -76,6 +76,8 @@ def buckets(xb, texel_pitch: float) -> Buckets:
         if inside.max(initial=0) <= 3:
             break
         width *= 0.5                  # breakpoints bunched closer than the pitches suggest
+        if width < 1e-6:
+            raise ValueError("the partition's breakpoints are too bunched for a bucket table")
     xbp = np.concatenate([xb, np.full(4, np.inf)])
     return Buckets(xbp, start[:-1].astype(np.int64), x0, 1.0 / width)
 
@@ -154,9 +156,8 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
         if hi < lo:
             continue
         # Knots along mask x: every band's bounds there, and the gaps any band meets between
-        # two knots.
-        # Knots from the partition's start (not the row's), so a band's bounds do not depend
-        # on which other bands are integrated with it.
+        # two knots.  They count from the partition's start, not the row's, so that a band's
+        # bounds do not depend on which other bands are integrated with it.
         xk = xb[0]
         qa = int((xb[lo] - xk) / KNOT)
         nq = min(int((xb[hi + 1] - xk) / KNOT) + 2, nk)
@@ -218,10 +219,10 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
             mc = mcol[i]
             tc = tcol[i]
             if mc >= 0 and tc >= 0:
-                u = (0.5 * (xb[i] + xb[i + 1]) - xk) / KNOT
+                xm = 0.5 * (xb[i] + xb[i + 1])
+                u = (xm - xk) / KNOT
                 q = min(max(int(u), qa), nq - 2)
                 t = u - q
-                xm = 0.5 * (xb[i] + xb[i + 1])
                 for l in range(L):
                     y0[l] = yk0[q, l] + t * (yk0[q + 1, l] - yk0[q, l])
                     y1[l] = yk1[q, l] + t * (yk1[q + 1, l] - yk1[q, l])
