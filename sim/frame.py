@@ -130,7 +130,6 @@ class FrameModel:
         if diffraction:
             self.kernels = [airy_kernel(float(design.airy_radius_um(lam)) / design.sensor_pixel_um)
                             for lam in self.bands_nm]
-        self.rects = [design.view_rect(v) for v in self.transport.views]
         self.blur = BlurredSum(self.kernels, self.scale)
 
     def electrons(self, cube) -> np.ndarray:

@@ -221,8 +221,7 @@ class BlurredSum:
                 out += images[i] * self.scales[l]
             return out
         shape = (fft.next_fast_len(h + 2 * R, real=True), fft.next_fast_len(w + 2 * R, real=True))
-        for l in bands:          # before the threads: the cache is filled once
-            self._kernel_fft(l, R, shape)
+        fk = [self._kernel_fft(l, R, shape) for l in bands]     # before the threads
 
         def half(idx):
             acc = None
@@ -230,7 +229,7 @@ class BlurredSum:
             for i in idx:
                 pad[:h, :w] = images[i]
                 term = fft.rfft2(pad, workers=1)
-                term *= self._fk[(bands[i], R, shape)]
+                term *= fk[i]
                 if acc is None:
                     acc = term
                 else:

@@ -9,8 +9,8 @@ integrates every pixel's footprint over its area, the band, the mask cells and t
 texels exactly (frames take every band of a view in one pass, :mod:`sim.view_integral`; the
 exact operator and its adjoint go band by band).  A frame is then a deterministic integral,
 not a Monte Carlo draw: a capture and a scene frame made from it agree because the optics
-agree, and no calibration can learn a sampling pattern (there is none to learn).  How close it is to the converged direct render is
-measured by ``tools/bench_transport.py``; :mod:`sim.sampled` keeps the Monte Carlo transport as
+agree, and no calibration can learn a sampling pattern (there is none to learn).  How close it
+is to the converged direct render is measured by ``tools/bench_transport.py``; :mod:`sim.sampled` keeps the Monte Carlo transport as
 an independent cross-check.
 
 A transport does not depend on the scene's resolution (the maps end on the diffuser in units of
@@ -162,7 +162,7 @@ class Transport:
             out = np.empty((len(bands), geom.h, geom.w), np.float32)
         part, bucket, tau = self.partition(k, f.shape[1]), self.buckets(k, f.shape[1]), \
             self.throughput(k)
-        step = 48
+        step = 48           # blocks of rows: enough of them that two threads finish together
         each(lambda r: view_forward(f, self.code, self.views[k], self.maps.relay[k], part,
                                     bucket, geom, cxn, cyl, nodes, bands, tau, out,
                                     (r, min(r + step, geom.h))),
@@ -186,16 +186,6 @@ class Transport:
         return band_adjoint(e, self.code, self.views[k], self.maps.relay[k],
                             self.partition(k, int(shape[1])), self.geometry(k, l),
                             self.throughput(k, l), shape, fbar)
-
-    def band(self, f, l: int, out=None) -> np.ndarray:
-        """Sensor irradiance (Hs, Ws) float32 of band ``l`` of the scene (band image ``f``)."""
-        if out is None:
-            out = np.zeros(self.sensor, np.float32)
-        f = np.ascontiguousarray(f, np.float32)
-        for k in range(len(self.views)):
-            r0, c0, h, w = (int(v) for v in self.maps.rects[k])
-            out[r0:r0 + h, c0:c0 + w] = self.view_band(f, k, l)
-        return out
 
     def apply(self, cube, bands=None, out=None) -> np.ndarray:
         """Per-band irradiance (L, Hs, Ws) float32 of a cube (H, W, L), every band of a view
