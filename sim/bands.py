@@ -13,6 +13,7 @@ as the others, and they receive half the photons (:func:`band_widths`).
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from recon.errors import InputError
 
@@ -60,11 +61,31 @@ def band_widths(design, wavelengths=None) -> np.ndarray:
     return np.maximum(iv[:, 1] - iv[:, 0], 0.0)
 
 
-def check_cube(design, cube, wavelengths):
-    """Validate a scene cube against the design; returns (cube float32 (H, W, L), wavelengths).
+@njit(cache=True, nogil=True)
+def _scan(c):
+    """One pass over a cube (H, W, L): (any non-finite value, any negative one, each band's
+    maximum); numpy would take three passes and two temporaries the cube's size."""
+    H, W, L = c.shape
+    peak = np.full(L, -np.inf, np.float32)
+    bad = False
+    neg = False
+    for i in range(H):
+        for j in range(W):
+            for l in range(L):
+                x = c[i, j, l]
+                bad |= not (x - x == 0.0)       # NaN or ±inf
+                neg |= x < 0.0
+                peak[l] = max(peak[l], x)
+    return bad, neg, peak
 
-    Raises :class:`InputError` for a wrong shape, non-finite or negative values, or wavelengths
-    that are not bands of the design (tolerance 1e-3 nm).
+
+def check_cube(design, cube, wavelengths, *, peaks: bool = False):
+    """Validate a scene cube against the design; returns (cube float32 (H, W, L), wavelengths),
+    and each band's maximum (L,) float32 as well with ``peaks=True`` (the same pass).
+
+    Raises :class:`InputError` for a wrong shape, non-finite or negative values (after the
+    conversion to float32: a value beyond its range is infinite there), or wavelengths that
+    are not bands of the design (tolerance 1e-3 nm).
     """
     c = np.asarray(cube)
     if c.ndim == 2:
@@ -76,9 +97,15 @@ def check_cube(design, cube, wavelengths):
         )
     if not np.all(np.isfinite(wl)):
         raise InputError("the cube's wavelengths must be finite")
-    if not np.all(np.isfinite(c)):
+    if not (np.issubdtype(c.dtype, np.number) or c.dtype == bool) \
+            or np.issubdtype(c.dtype, np.complexfloating):
+        raise InputError(f"the scene cube must hold real numbers, got {c.dtype}")
+    with np.errstate(over="ignore"):         # out of range: inf, refused below
+        c = c.astype(np.float32, copy=False)
+    bad, neg, peak = _scan(c)
+    if bad:
         raise InputError("the scene cube has non-finite values (NaN or inf)")
-    if np.any(c < 0):
+    if neg:
         raise InputError("the scene cube has negative radiance")
     bands = design.wavelengths
     for x in wl:
@@ -87,4 +114,4 @@ def check_cube(design, cube, wavelengths):
                 f"wavelength {x:g} nm is not a band of the design "
                 f"({bands[0]:g}–{bands[-1]:g} nm, step {design.band_step_nm:g})"
             )
-    return c.astype(np.float32, copy=False), wl
+    return (c, wl, peak) if peaks else (c, wl)

@@ -145,15 +145,16 @@ class FrameModel:
         """
         from sim.bands import check_cube
 
-        cube, _ = check_cube(self.design, cube, self.wavelengths)
+        cube, _, peaks = check_cube(self.design, cube, self.wavelengths, peaks=True)
         if self.source_band is not None:
             cube = cube[:, :, self.source_band:self.source_band + 1]
+            peaks = peaks[self.source_band:self.source_band + 1]
         tr = self.transport
         Hs, Ws = tr.sensor
         total = np.zeros(tr.sensor, np.float32)
         n_bands = cube.shape[2]
         # Radiance is never negative (checked), so a band is lit where its maximum is.
-        lit = [int(l) for l in np.flatnonzero(cube.reshape(-1, n_bands).max(axis=0) > 0)]
+        lit = [int(l) for l in np.flatnonzero(peaks > 0)]
         if not lit:
             return total
         f = np.ascontiguousarray(cube if len(lit) == n_bands else cube[:, :, lit], np.float32)

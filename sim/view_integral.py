@@ -20,11 +20,16 @@ computes those once per row and carries all bands along (the same maths as
    pixel to pixel; beyond a band's end pixels, their bounds).  The inner loop runs over the
    bands, the scene being stored band-last.
 2. *Edges* (stage 2).  Every pixel edge is located among the pieces once per wavelength node
-   (a node at a band's end serves both bands), by a bucket table: buckets narrower than half
-   the texel pitch and a quarter mask unit hold at most three breakpoints, so three comparisons
-   added replace a walk whose branches mispredict.  Each band then takes its mean of
-   :math:`G = \int g` over each segment between nodes from :math:`GG = \int G`, as in
-   :mod:`sim.pixel_integral`.
+   (a node at a band's end serves both bands): in a block's first row by a bucket table
+   (buckets narrower than half the texel pitch and a quarter mask unit hold at most three
+   breakpoints, so three comparisons added replace a walk whose branches mispredict), in the
+   next rows by stepping from the piece it was in a row above (an edge moves by a small
+   fraction of a piece from row to row: the step is almost always none).  Each band then
+   takes its mean of :math:`G = \int g` over each segment between nodes from
+   :math:`GG = \int G`, as in :mod:`sim.pixel_integral`.
+
+Each row's lower pixel edge is the next row's upper one, so the footprints' y bounds are
+evaluated once per edge in a block of rows, not twice.
 
 The result equals :func:`~sim.pixel_integral.band_forward` band by band to a few 10⁻⁵ of the
 view's peak (the footprints' y bounds are interpolated where that kernel interpolates the
@@ -101,6 +106,8 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
     X = np.empty((N, w + 1))
     Y0 = np.empty((L, w))
     Y1 = np.empty((L, w))
+    YE0 = np.empty((L, w))
+    YE1 = np.empty((L, w))
     XC = np.empty(w)
     IXC = np.zeros(w)
     nk = int((xb[nint] - xb[0]) / KNOT) + 3
@@ -120,6 +127,13 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
     T = np.empty((L, nint + 3, 3))
     xs = np.empty(nint + 3)
     KI = np.empty((N, w + 1), np.int64)
+    PA = np.empty((N, w + 1), np.int64)
+    # The breakpoints between −∞ and +∞: piece p spans [xlim[p + 1], xlim[p + 2]).
+    xlim = np.empty(nint + 4)
+    xlim[0] = -np.inf
+    xlim[1:nint + 2] = xb
+    xlim[nint + 2:] = np.inf
+    located = False
     nmax = 1
     for l in range(L):
         nmax = max(nmax, boff[l + 1] - boff[l])
@@ -140,12 +154,17 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
             _poly_row(prc[r], cxn[j], pceT, X[j])
         ylo = np.inf
         yhi = -np.inf
+        # A row's lower pixel edge is the next row's upper one: each edge's bounds are
+        # evaluated once per block of rows.
+        if r == r_start:
+            for l in range(L):
+                _poly_row(pre[r], cyl[l], pccT, YE1[l])
+        YE0, YE1 = YE1, YE0
         for l in range(L):
-            _poly_row(pre[r], cyl[l], pccT, Y0[l])
-            _poly_row(pre[r + 1], cyl[l], pccT, Y1[l])
+            _poly_row(pre[r + 1], cyl[l], pccT, YE1[l])
             for c in range(w):
-                if Y1[l, c] < Y0[l, c]:
-                    Y0[l, c], Y1[l, c] = Y1[l, c], Y0[l, c]
+                Y0[l, c] = min(YE0[l, c], YE1[l, c])
+                Y1[l, c] = max(YE0[l, c], YE1[l, c])
                 ylo = min(ylo, Y0[l, c])
                 yhi = max(yhi, Y1[l, c])
         ng = _row_gaps(ylo, yhi, ay, by, H, n_mask, pmr, ptr_, bounds)
@@ -251,12 +270,29 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
                 g[i, l] = acc[l]
                 GG[i + 1, l] = GG[i, l] + G[i, l] * Lp + 0.5 * acc[l] * Lp * Lp
                 G[i + 1, l] = G[i, l] + acc[l] * Lp
-        # Every edge located once per node: KI = its piece, clamped to [lo − 1, hi + 1],
-        # less lo − 1 (an index into T).
+        # Every edge located once per node: PA = its piece (−1 before the first), KI = that
+        # clamped to [lo − 1, hi + 1], less lo − 1 (an index into T).  An edge moves by a
+        # small fraction of a piece from one row to the next, so after the block's first
+        # row (the bucket table) each edge's piece is found by stepping from where it was
+        # in the row above: almost always no step, a branch that predicts well.
+        if not located:
+            for j in range(N):
+                for e in range(w + 1):
+                    PA[j, e] = _count(X[j, e], xbp, start, x0, inv) - 1
+            located = True
+        else:
+            for j in range(N):
+                for e in range(w + 1):
+                    x = X[j, e]
+                    p = PA[j, e]
+                    while xlim[p + 2] <= x:
+                        p += 1
+                    while xlim[p + 1] > x:
+                        p -= 1
+                    PA[j, e] = p
         for j in range(N):
             for e in range(w + 1):
-                p = _count(X[j, e], xbp, start, x0, inv) - 1
-                KI[j, e] = min(max(p, lo - 1), hi + 1) - lo + 1
+                KI[j, e] = min(max(PA[j, e], lo - 1), hi + 1) - lo + 1
         # Band-major tables (g, G, GG) by that index: row 0 before the row's pieces (all 0),
         # the last past them (G and GG carried on, g = 0), so every edge evaluates alike.
         nb_ = hi - lo + 2

@@ -194,3 +194,14 @@ def test_node_weights_are_the_trapezoid_rule():
     np.testing.assert_allclose(pi.node_weights(1), [1.0])
     np.testing.assert_allclose(pi.node_weights(3), [0.25, 0.5, 0.25])
     np.testing.assert_allclose(pi.node_weights(5).sum(), 1.0)
+
+
+@pytest.mark.parametrize("D", [6, 4])
+def test_row_polynomial_matches_numpy(D):
+    """The kernels' polynomial along a row (the maps' degree 5 has its own loop; any other
+    degree the general one): Σ_b (Σ_a rv[a] c[a, b]) colT[b, e], as numpy computes it."""
+    rng = np.random.default_rng(D)
+    rv, c, colT = rng.normal(size=D), rng.normal(size=(D, D)), rng.normal(size=(D, 57))
+    out = np.full(57, np.nan)
+    pi._poly_row(rv, c, colT, out)
+    np.testing.assert_allclose(out, (rv @ c) @ colT, rtol=1e-12, atol=1e-12)

@@ -1,0 +1,48 @@
+"""sim.bands: the scene cube's one-pass check and its bands' maxima."""
+
+import numpy as np
+import pytest
+
+from recon.errors import InputError
+from sim.bands import check_cube
+from sim.design import get_design
+
+SMALL = get_design("small")
+
+
+def test_peaks_are_each_bands_maximum_in_any_layout():
+    wl = SMALL.wavelengths
+    rng = np.random.default_rng(0)
+    cube = rng.random((40, 30, wl.size)).astype(np.float32)
+    cube[:, :, 3] = 0.0                                     # a dark band
+    for c in (cube, cube[::2, 1::3], np.asfortranarray(cube), cube.astype(np.float64)):
+        out, w, peaks = check_cube(SMALL, c, wl, peaks=True)
+        assert out.dtype == np.float32 and peaks.dtype == np.float32
+        np.testing.assert_array_equal(peaks, np.asarray(c, np.float32).max(axis=(0, 1)))
+        np.testing.assert_array_equal(w, wl)
+    assert peaks[3] == 0.0
+    assert len(check_cube(SMALL, cube, wl)) == 2            # peaks only when asked
+
+
+@pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
+def test_a_single_non_finite_value_anywhere_is_refused(value):
+    wl = SMALL.wavelengths
+    cube = np.ones((9, 7, wl.size), np.float32)
+    for at in ((0, 0, 0), (8, 6, wl.size - 1), (4, 3, 5)):
+        bad = cube.copy()
+        bad[at] = value
+        with pytest.raises(InputError, match="non-finite"):
+            check_cube(SMALL, bad, wl)
+
+
+def test_negative_and_out_of_range_radiance_is_refused():
+    wl = SMALL.wavelengths
+    cube = np.ones((9, 7, wl.size), np.float64)
+    cube[2, 2, 2] = -1e-30
+    with pytest.raises(InputError, match="negative"):
+        check_cube(SMALL, cube, wl)
+    cube[2, 2, 2] = 1e300                                   # infinite once in float32
+    with pytest.raises(InputError, match="non-finite"):
+        check_cube(SMALL, cube, wl)
+    with pytest.raises(InputError, match="real numbers"):
+        check_cube(SMALL, np.ones((3, 3, wl.size), np.complex64), wl)
