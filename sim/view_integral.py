@@ -34,7 +34,7 @@ evaluated once per edge in a block of rows, not twice.
 The result equals :func:`~sim.pixel_integral.band_forward` band by band to a few 10⁻⁵ of the
 view's peak (the footprints' y bounds are interpolated where that kernel interpolates the
 shares; both are exact to the maps' 10⁻⁴ px; ``tests/sim/test_view_integral.py``) and, on
-``paper``, costs about half of what its 26 bands cost there (``tools/bench_transport.py``).
+``paper``, costs 0.4 of what its 26 bands cost there (``tools/bench_transport.py``).
 """
 
 from __future__ import annotations
