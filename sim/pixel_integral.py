@@ -347,6 +347,15 @@ class RowGeometry:
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _fold(rv, c, b):
+    """``Σ_a rv[a] c[a, b]``: column ``b`` of a polynomial folded with one row's values."""
+    s = 0.0
+    for a in range(c.shape[0]):
+        s += rv[a] * c[a, b]
+    return s
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _poly_row(rv, c, colT, out):
     """``out[e] = Σ_b (Σ_a rv[a] c[a, b]) colT[b, e]``: a polynomial folded with one row's
     values ``rv`` first, then evaluated along the row (inner loops over columns).
@@ -356,18 +365,8 @@ def _poly_row(rv, c, colT, out):
     paths agree to the bit."""
     D = c.shape[0]
     if D == 6:
-        c0 = rv[0] * c[0, 0] + rv[1] * c[1, 0] + rv[2] * c[2, 0] + rv[3] * c[3, 0] \
-            + rv[4] * c[4, 0] + rv[5] * c[5, 0]
-        c1 = rv[0] * c[0, 1] + rv[1] * c[1, 1] + rv[2] * c[2, 1] + rv[3] * c[3, 1] \
-            + rv[4] * c[4, 1] + rv[5] * c[5, 1]
-        c2 = rv[0] * c[0, 2] + rv[1] * c[1, 2] + rv[2] * c[2, 2] + rv[3] * c[3, 2] \
-            + rv[4] * c[4, 2] + rv[5] * c[5, 2]
-        c3 = rv[0] * c[0, 3] + rv[1] * c[1, 3] + rv[2] * c[2, 3] + rv[3] * c[3, 3] \
-            + rv[4] * c[4, 3] + rv[5] * c[5, 3]
-        c4 = rv[0] * c[0, 4] + rv[1] * c[1, 4] + rv[2] * c[2, 4] + rv[3] * c[3, 4] \
-            + rv[4] * c[4, 4] + rv[5] * c[5, 4]
-        c5 = rv[0] * c[0, 5] + rv[1] * c[1, 5] + rv[2] * c[2, 5] + rv[3] * c[3, 5] \
-            + rv[4] * c[4, 5] + rv[5] * c[5, 5]
+        c0, c1, c2 = _fold(rv, c, 0), _fold(rv, c, 1), _fold(rv, c, 2)
+        c3, c4, c5 = _fold(rv, c, 3), _fold(rv, c, 4), _fold(rv, c, 5)
         for e in range(out.shape[0]):
             out[e] = (c0 * colT[0, e] + c1 * colT[1, e] + c2 * colT[2, e] + c3 * colT[3, e]
                       + c4 * colT[4, e] + c5 * colT[5, e])
@@ -375,9 +374,7 @@ def _poly_row(rv, c, colT, out):
     for e in range(out.shape[0]):
         out[e] = 0.0
     for b in range(D):
-        cb = 0.0
-        for a in range(D):
-            cb += rv[a] * c[a, b]
+        cb = _fold(rv, c, b)
         for e in range(out.shape[0]):
             out[e] += cb * colT[b, e]
 

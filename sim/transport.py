@@ -10,8 +10,8 @@ texels exactly (frames take every band of a view in one pass, :mod:`sim.view_int
 exact operator and its adjoint go band by band).  A frame is then a deterministic integral,
 not a Monte Carlo draw: a capture and a scene frame made from it agree because the optics
 agree, and no calibration can learn a sampling pattern (there is none to learn).  How close it
-is to the converged direct render is measured by ``tools/bench_transport.py``; :mod:`sim.sampled` keeps the Monte Carlo transport as
-an independent cross-check.
+is to the converged direct render is measured by ``tools/bench_transport.py``;
+:mod:`sim.sampled` keeps the Monte Carlo transport as an independent cross-check.
 
 A transport does not depend on the scene's resolution (the maps end on the diffuser in units of
 the scene's side), so one trace serves the calibration targets on the view's grid and scenes at
