@@ -11,7 +11,8 @@ For each preset, from an empty cache folder:
   (every band of a view in one pass, as frames take them, and band by band, as the exact
   operator does) and with the sensor model (Airy blur, photo-electrons), and the exact
   operator's forward and adjoint on the same maps (one solver iteration of an "oracle"
-  reconstruction);
+  reconstruction); the frame again on one core, and how much vector arithmetic the machine's
+  second core adds (:func:`core_scaling`: a 2-core target means little on two hyperthreads);
 - **convergence**: in windows of the centre view and of the left view's vignetted outer
   columns, the frame's mean photo-electrons at the default exposure (brightest pixel at 80 %
   of the full well) against Mitsuba's path tracer (``kaleidospec_path``, stratified) at a
@@ -56,6 +57,54 @@ def best_of(fn, n=3):
         out = fn()
         best = min(best, time.perf_counter() - t0)
     return out, best
+
+
+def core_scaling(seconds: float = 0.5) -> float:
+    """How much vector arithmetic two threads do together, as a multiple of one thread's.
+
+    A fused multiply-add stream over an array that stays in L1 (no memory traffic): 2.0 on two
+    physical cores, about 1 where the two "cores" are hyperthreads of one (they share its
+    vector units).  Much of a frame is such arithmetic, so this says what a 2-core wall time
+    means on the machine at hand."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from numba import njit
+
+    @njit(nogil=True, fastmath=True)
+    def fma_stream(a, reps):
+        for _ in range(reps):
+            for i in range(a.shape[0]):
+                a[i] = a[i] * 0.999999 + 1e-7
+        return a[0]
+
+    arrays = [np.random.default_rng(i).random(2048) for i in range(2)]
+    fma_stream(arrays[0], 1)
+    t0 = time.perf_counter()
+    fma_stream(arrays[0], 1000)
+    reps = max(1000, int(1000 * seconds / max(time.perf_counter() - t0, 1e-6)))
+    ratios = []
+    with ThreadPoolExecutor(2) as pool:
+        for _ in range(3):
+            t0 = time.perf_counter()
+            fma_stream(arrays[0], reps)
+            one = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            list(pool.map(lambda a: fma_stream(a, reps), arrays))
+            ratios.append(2.0 * one / (time.perf_counter() - t0))
+    return float(np.median(ratios))
+
+
+def on_one_core(fn):
+    """``fn()`` with this process (and the threads it starts) held to one CPU; ``None`` where
+    the platform cannot pin."""
+    if not hasattr(os, "sched_getaffinity") or len(os.sched_getaffinity(0)) < 2:
+        return None
+    cpus = os.sched_getaffinity(0)
+    os.sched_setaffinity(0, {min(cpus)})
+    try:
+        return fn()
+    finally:
+        os.sched_setaffinity(0, cpus)
 
 
 def windows(d, size):
@@ -137,6 +186,8 @@ def bench(preset, counts, size, cache, frames_only=False):
     print(f"load (incl. throughput images): {time.perf_counter() - t0:.1f} s; in memory "
           f"{tr.nbytes() / 2**20:.0f} MiB")
     model = FrameModel(d, wl, trace_seed=transport.SEEDS["scene"])
+    print(f"this machine: two threads do {core_scaling():.2f}x the vector arithmetic of one "
+          f"(2 on two physical cores, ~1 on two hyperthreads of one)")
     views = range(len(tr.views))
     for scale in (1, 2):
         cube, _ = get_scene("natural", (scale * v, scale * v), wl)
@@ -165,6 +216,10 @@ def bench(preset, counts, size, cache, frames_only=False):
         print(f"frame {scale}x ({scale * v} px scene): pixel integrals {best['all']:.2f} s "
               f"(every band of a view at once; band by band {best['band']:.2f} s, "
               f"{best['band'] / best['all']:.2f}x), with the sensor model {best['frame']:.2f} s")
+        one = on_one_core(lambda: best_of(lambda: model.electrons(cube))[1])
+        if one is not None:
+            print(f"  the same frame on one core: {one:.2f} s (the second core gives "
+                  f"{one / best['frame']:.2f}x)")
     # The exact operator (the "oracle" reconstructions) on the same maps: one application each
     # way is one solver iteration's optics.
     from sim.oracle import ExactOperator
