@@ -47,7 +47,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -56,6 +55,7 @@ from typing import Any, Callable
 import numpy as np
 
 from kaleidospec.reconstruct import DEFAULTS
+from recon import kernels
 from recon.errors import InputError
 
 __all__ = ["SWEEPS", "MEASURE_VERSION", "SweepSettings", "SweepResult", "sweep_values",
@@ -396,7 +396,7 @@ def run_sweep(settings: SweepSettings, values, out_dir, *, workers: int | None =
         if scheduler:
             it = _dask_map(evaluate_point, todo, scheduler)
         else:
-            cores = os.cpu_count() or 1
+            cores = kernels.cores()
             w = max(1, min(int(workers or cores), len(todo)))
             threads = max(1, cores // w)
             it = _local_map(evaluate_point, todo, w, threads)

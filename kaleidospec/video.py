@@ -43,7 +43,6 @@ Layout of the output folder::
 from __future__ import annotations
 
 import math
-import os
 import time
 from pathlib import Path
 
@@ -51,6 +50,7 @@ import numpy as np
 
 from recon.errors import InputError
 from recon.io.arrays import read_json_object
+from recon.kernels import cores
 
 __all__ = ["VideoLayout", "render_sequence", "plan_segments", "reconstruct_segment",
            "reconstruct_sequence", "write_summary", "write_video", "run_video"]
@@ -308,7 +308,7 @@ def reconstruct_sequence(out_dir, n_frames: int, segments, settings: dict, *,
     pending = [seg for seg in segments
                if any(not lay.reconstructed(i) for i in range(seg[0], seg[1]))]
     already = lay.count_reconstructed(n_frames)
-    ncpu = os.cpu_count() or 1
+    ncpu = cores()
     workers = ncpu if workers is None else max(1, int(workers))
     backend = "dask" if scheduler else ("processes" if workers > 1 and len(pending) > 1
                                         else "serial")
@@ -548,7 +548,7 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
     anim = instrument.animation(scene, d, n_frames=frames, fps=fps, subframes=subframes,
                                 **(scene_params or {}))
     n = len(anim)
-    ncpu = os.cpu_count() or 1
+    ncpu = cores()
     nworkers = ncpu if workers is None else max(1, int(workers))
     if segment_frames is not None and (int(segment_frames) != segment_frames or segment_frames < 1):
         raise InputError(f"--segment must be an integer >= 1, got {segment_frames}")

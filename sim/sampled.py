@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -46,6 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from recon.errors import InputError
+from recon.kernels import cores
 from sim.bands import band_intervals
 from sim.transport import cache_dir
 
@@ -143,7 +143,7 @@ class Transport:
             out[l].reshape(-1)[upix] = a @ np.ascontiguousarray(cube[:, :, l]).ravel()
 
         # scipy's sparse product releases the GIL: bands run in parallel on all cores.
-        workers = min(len(todo), os.cpu_count() or 1)
+        workers = min(len(todo), cores())
         if workers > 1:
             with ThreadPoolExecutor(workers) as pool:
                 list(pool.map(one, todo))

@@ -30,6 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from recon.errors import InputError
+from recon.kernels import cores
 
 __all__ = [
     "QE_CURVES",
@@ -207,7 +208,6 @@ class BlurredSum:
         The bands are split between two threads in a fixed way (halves) and their sums added
         in a fixed order, so the result does not depend on which thread finishes first, nor on
         the number of cores."""
-        import os
         from concurrent.futures import ThreadPoolExecutor
 
         from scipy import fft
@@ -238,7 +238,7 @@ class BlurredSum:
 
         n = len(bands)
         splits = [range(0, (n + 1) // 2), range((n + 1) // 2, n)]
-        if n > 1 and (os.cpu_count() or 1) > 1:
+        if n > 1 and cores() > 1:
             with ThreadPoolExecutor(2) as pool:     # the transforms release the GIL
                 parts = list(pool.map(half, splits))
         else:
@@ -247,7 +247,7 @@ class BlurredSum:
         total = parts[0]
         for p in parts[1:]:
             total += p
-        full = fft.irfft2(total, s=shape, workers=2)
+        full = fft.irfft2(total, s=shape, workers=min(2, cores()))
         return np.ascontiguousarray(full[:h + 2 * R, :w + 2 * R], np.float32)
 
 

@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from recon.errors import InputError
+from recon.kernels import cores
 from sim.bands import band_intervals
 
 __all__ = ["Transport", "SEEDS", "cache_dir", "build_transport", "load_or_build",
@@ -223,9 +224,10 @@ class Transport:
 
 
 def each(fn, items):
-    """``fn(item)`` for every item, on a thread per core (the kernels release the GIL)."""
+    """``fn(item)`` for every item, on a thread per CPU the process may use
+    (:func:`recon.kernels.cores`; the kernels release the GIL)."""
     items = list(items)
-    workers = min(len(items), os.cpu_count() or 1)
+    workers = min(len(items), cores())
     if workers > 1:
         with ThreadPoolExecutor(workers) as pool:
             return list(pool.map(fn, items))
@@ -233,7 +235,7 @@ def each(fn, items):
 
 
 def ordered_sum(fn, items, out, add=None):
-    """``out += fn(item)`` for every item, ``fn`` on a thread per core, the sum always in the
+    """``out += fn(item)`` for every item, ``fn`` on a thread per usable CPU, the sum always in the
     items' order (so a frame is the same to the last bit whichever thread finishes first, and
     its noise draw too).  ``fn`` may return None (nothing); ``add(out, part)``, when given,
     takes the place of ``out += part`` (a part that covers only some of ``out``).
@@ -243,7 +245,7 @@ def ordered_sum(fn, items, out, add=None):
     for the sum.  At most one result per thread waits in memory beyond those in flight.
     """
     items = list(items)
-    workers = max(1, min(len(items), os.cpu_count() or 1))
+    workers = max(1, min(len(items), cores()))
     with ThreadPoolExecutor(workers) as pool:
         pending = deque()
         it = iter(items)

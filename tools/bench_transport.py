@@ -96,7 +96,8 @@ def core_scaling(seconds: float = 0.5) -> float:
 
 def on_one_core(fn):
     """``fn()`` with this process (and the threads it starts) held to one CPU; ``None`` where
-    the platform cannot pin."""
+    the platform cannot pin.  The frame's thread pools size themselves by the CPUs the process
+    may use (:func:`recon.kernels.cores`), so this times one thread doing all the work."""
     if not hasattr(os, "sched_getaffinity") or len(os.sched_getaffinity(0)) < 2:
         return None
     cpus = os.sched_getaffinity(0)

@@ -30,7 +30,6 @@ the filter's (``docs/figures.md``).
 
 from __future__ import annotations
 
-import os
 
 import numpy as np
 from scipy.special import j1
@@ -418,6 +417,8 @@ def tv_deconvolve(views: np.ndarray, radii: np.ndarray, weight: float = TV_WEIGH
     """
     import scipy.fft as sfft
 
+    from recon import kernels
+
     _check_positive(weight, "the TV weight")
     _check_positive(balance, "the Wiener balance")
     if not (isinstance(iterations, (int, np.integer)) and iterations >= 0):
@@ -428,7 +429,7 @@ def tv_deconvolve(views: np.ndarray, radii: np.ndarray, weight: float = TV_WEIGH
     pad = max(k.shape[0] // 2 for k in psfs)
     hp = sfft.next_fast_len(h + 2 * pad, real=True)
     wp = sfft.next_fast_len(w + 2 * pad, real=True)
-    workers = os.cpu_count() or 1
+    workers = kernels.cores()
 
     def rfft(x):
         return sfft.rfft2(x, workers=workers)

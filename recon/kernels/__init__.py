@@ -27,7 +27,7 @@ import threading
 
 import numpy as np
 
-__all__ = ["enabled", "usable", "numpy_only", "threads", "jit"]
+__all__ = ["cores", "enabled", "usable", "numpy_only", "threads", "jit"]
 
 _STATE = threading.local()
 _NUMBA: list = []  # [numba module or None] once looked up: importing it costs ~0.2 s
@@ -54,6 +54,19 @@ def _numba():
 #: reciprocal/approximate-function licences, but not ``nnan``/``ninf``: the solvers rely on
 #: NaN and infinity propagating (and the stress tests check that they never appear).
 FASTMATH = frozenset({"nsz", "arcp", "contract", "reassoc", "afn"})
+
+
+def cores() -> int:
+    """The CPUs this process may run on: its affinity set where the system keeps one (a batch
+    scheduler's cpuset, ``taskset``), else every CPU of the machine.
+
+    Thread pools and Numba's threads are sized by it, so that a process held to fewer CPUs
+    than the machine has does not time-slice more threads than it has CPUs.
+    """
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):  # pragma: no cover - systems without affinity sets
+        return max(1, os.cpu_count() or 1)
 
 
 def enabled() -> bool:
@@ -103,7 +116,8 @@ def _layer_is_threadsafe(nb) -> bool:
 
 @contextlib.contextmanager
 def threads(n: int | None = None):
-    """Call kernels in this block: on at most ``n`` threads (``None``: all of Numba's).
+    """Call kernels in this block: on at most ``n`` threads (``None``: one per CPU of
+    :func:`cores`, at most Numba's).
 
     Every kernel call goes through this block.  Numba's thread count is per calling thread,
     so ``n`` does not affect other threads; where the threading layer is not thread-safe,
@@ -117,8 +131,8 @@ def threads(n: int | None = None):
     if lock is not None:
         lock.acquire()
     old = nb.get_num_threads()
-    if n is not None:
-        nb.set_num_threads(max(1, min(int(n), nb.config.NUMBA_NUM_THREADS)))
+    n = cores() if n is None else n
+    nb.set_num_threads(max(1, min(int(n), nb.config.NUMBA_NUM_THREADS)))
     try:
         yield
     finally:

@@ -50,7 +50,6 @@ The isotropic iteration is the one of :func:`skimage.restoration.denoise_tv_cham
 from __future__ import annotations
 
 import math
-import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
@@ -222,7 +221,7 @@ def tv_norm(x: np.ndarray, isotropic: bool = True, threads: int | None = None) -
 
 
 def _default_threads() -> int:
-    return max(1, min(4, os.cpu_count() or 1))
+    return min(4, kernels.cores())
 
 
 _POOL: ThreadPoolExecutor | None = None

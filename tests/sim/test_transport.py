@@ -253,3 +253,30 @@ def test_bad_cube_is_rejected(design):
         check_cube(d, np.full((v, v, 1), np.nan, np.float32), [500.0])
     with pytest.raises(InputError):
         check_cube(d, np.ones((v, v, 1), np.float32), [510.0])  # not a band of the design
+
+
+@pytest.mark.parametrize("cpus", [{0}, {0, 1}])
+def test_threads_follow_the_cpus_the_process_may_use(monkeypatch, cpus):
+    """A process held to one CPU (``taskset``, a batch scheduler's cpuset) runs the frame's
+    items in its own thread, not two threads time-slicing one CPU; with two, on two threads."""
+    import os
+    import threading
+
+    from sim.transport import each, ordered_sum
+
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(cpus), raising=False)
+    seen = []
+
+    def work(i):
+        seen.append(threading.get_ident())
+        return np.full(3, float(i))
+
+    each(work, range(6))
+    out = ordered_sum(work, range(6), np.zeros(3))
+    assert np.array_equal(out, np.full(3, 15.0))
+    own = threading.get_ident()
+    if len(cpus) == 1:
+        assert set(seen[:6]) == {own}
+        assert len(set(seen[6:])) == 1
+    else:
+        assert own not in seen

@@ -179,6 +179,20 @@ def test_combine_with_tv_matches_numpy(isotropic, shape):
 # -- threads and whole solves ----------------------------------------------------------------
 
 
+def test_threads_follow_the_cpus_the_process_may_use(monkeypatch):
+    import os
+
+    import numba
+
+    for cpus in ({0}, {0, 1, 2}):
+        monkeypatch.setattr(os, "sched_getaffinity", lambda pid, c=cpus: set(c), raising=False)
+        assert kernels.cores() == len(cpus)
+        with kernels.threads():
+            assert numba.get_num_threads() == min(len(cpus), numba.config.NUMBA_NUM_THREADS)
+        with kernels.threads(1):
+            assert numba.get_num_threads() == 1
+
+
 def test_kernels_do_not_depend_on_threads():
     op = OPS["kaleido9-sub"]
     rng = np.random.default_rng(10)
