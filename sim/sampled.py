@@ -142,7 +142,7 @@ class Transport:
             upix, a = self._matrix(l)
             out[l].reshape(-1)[upix] = a @ np.ascontiguousarray(cube[:, :, l]).ravel()
 
-        # scipy's sparse product releases the GIL: bands run in parallel on all cores.
+        # scipy's sparse product releases the GIL: bands run in parallel on every usable CPU.
         workers = min(len(todo), cores())
         if workers > 1:
             with ThreadPoolExecutor(workers) as pool:

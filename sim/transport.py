@@ -235,10 +235,11 @@ def each(fn, items):
 
 
 def ordered_sum(fn, items, out, add=None):
-    """``out += fn(item)`` for every item, ``fn`` on a thread per usable CPU, the sum always in the
-    items' order (so a frame is the same to the last bit whichever thread finishes first, and
-    its noise draw too).  ``fn`` may return None (nothing); ``add(out, part)``, when given,
-    takes the place of ``out += part`` (a part that covers only some of ``out``).
+    """``out += fn(item)`` for every item, ``fn`` on a thread per usable CPU (:func:`each`), the
+    sum always in the items' order (so a frame is the same to the last bit whichever thread
+    finishes first, and its noise draw too).  ``fn`` may return None (nothing); ``add(out,
+    part)``, when given, takes the place of ``out += part`` (a part that covers only some of
+    ``out``).
 
     The next item starts as soon as a thread is free and the sum is taken while the others
     work (NumPy releases the GIL): a thread never waits for the slowest item of a batch, nor

@@ -30,7 +30,6 @@ the filter's (``docs/figures.md``).
 
 from __future__ import annotations
 
-
 import numpy as np
 from scipy.special import j1
 
