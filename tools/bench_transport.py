@@ -98,9 +98,9 @@ def on_one_core(fn):
     """``fn()`` with this process (and the threads it starts) held to one CPU; ``None`` where
     the platform cannot pin.  The frame's thread pools size themselves by the CPUs the process
     may use (:func:`recon.kernels.cores`), so this times one thread doing all the work."""
-    if not hasattr(os, "sched_getaffinity") or len(os.sched_getaffinity(0)) < 2:
+    cpus = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else set()
+    if len(cpus) < 2:
         return None
-    cpus = os.sched_getaffinity(0)
     os.sched_setaffinity(0, {min(cpus)})
     try:
         return fn()

@@ -18,7 +18,6 @@ Targets: render ≥ 5 frames/s; reconstruct ≥ 1 frame/s warm, within 0.5 dB of
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import tempfile
 import time
@@ -50,6 +49,7 @@ def main(argv=None) -> int:
     from kaleidospec.instrument import FrameRenderer
     from kaleidospec.reconstruct import Reconstructor
     from kaleidospec.video import VideoLayout, reconstruct_sequence, render_sequence
+    from recon.kernels import cores
     from recon.metrics import psnr
     from scenes.animated import RotatingColorwheel
     from sim.design import get_design
@@ -62,7 +62,7 @@ def main(argv=None) -> int:
                               exposure_ms=d.exposure_ms, speed_deg_s=args.speed)
     print(f"design {args.design} ({d.hash}): sensor {d.sensor_width_px}x{d.sensor_height_px}, "
           f"views {v} px, {d.n_bands} bands; colour wheel at {args.speed:g} deg/s, 10 fps, "
-          f"{n} frames; {os.cpu_count()} cores")
+          f"{n} frames; {cores()} cores")
 
     # ---- 1. rendering ------------------------------------------------------------------------
     t = time.perf_counter()
@@ -135,7 +135,7 @@ def main(argv=None) -> int:
                     "solver": "gap-tv", "iters": args.iters, "cold_iters": args.cold_iters,
                     "tau": None, "mu": 0.0, "animation": anim.describe(),
                     "wavelengths": [float(x) for x in d.wavelengths]}
-        workers = os.cpu_count() or 1
+        workers = cores()
         seg = max(1, -(-n // workers))
         segs = [[a, min(a + seg, n)] for a in range(0, n, seg)]
         res = reconstruct_sequence(tmp, n, segs, settings, workers=workers, progress=False)

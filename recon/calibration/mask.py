@@ -33,6 +33,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import j1
 
+from recon import kernels
 from recon.calibration.views import as_frame_stack, check_boxes, crop
 from recon.errors import InputError
 
@@ -416,8 +417,6 @@ def tv_deconvolve(views: np.ndarray, radii: np.ndarray, weight: float = TV_WEIGH
     """
     import scipy.fft as sfft
 
-    from recon import kernels
-
     _check_positive(weight, "the TV weight")
     _check_positive(balance, "the Wiener balance")
     if not (isinstance(iterations, (int, np.integer)) and iterations >= 0):
@@ -538,8 +537,6 @@ def deconvolve(views: np.ndarray, radii: np.ndarray, iterations: int = 30,
     (K, L, h, w) ndarray
         ``out``.
     """
-    from recon import kernels
-
     if iterations < 1:
         raise InputError(f"rl_iterations must be >= 1, got {iterations}")
     fast = kernels.enabled()
@@ -598,7 +595,6 @@ def _skimage_rl(image, psf, iterations):
 def _richardson_lucy(image, psf, iterations):
     """``skimage.restoration.richardson_lucy(image, psf, iterations, clip=False)`` in float32
     through :mod:`recon.kernels.deconvolve`."""
-    from recon import kernels
     from recon.kernels import deconvolve as kdec
 
     d = np.ascontiguousarray(image, dtype=np.float32)
