@@ -239,7 +239,7 @@ def trace_band(design, shape, interval, spp: int, seed: int = 0, pixels=None,
     from sim.rays import sensor_rays, walk
 
     setup, region = _setup if _setup is not None else _trace_setup(design, shape)
-    Hs, Ws = design.sensor_height_px, design.sensor_width_px
+    Ws = design.sensor_width_px
     if pixels is None:
         pixels = sensor_pixels(design)
     pixels = np.asarray(pixels, dtype=np.int64)

@@ -71,6 +71,7 @@ import re
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -79,6 +80,9 @@ from recon.calibration.geometry import to_view_coordinates
 from recon.calibration.views import check_boxes, check_view_ids
 from recon.errors import InputError
 from recon.io.arrays import read_json_object
+
+if TYPE_CHECKING:              # for the annotation only: SciPy loads when a footprint is used
+    import scipy.sparse
 
 FORMAT = "kaleidospec-calibration"
 VERSION = 1

@@ -70,7 +70,7 @@ def _reference(f, code, view, relay, part, geom, tau, r):
     """Row ``r`` of one view and band by a direct sum over the partition's pieces, each
     weighted by the closed-form integral of the pixel's footprint kernel over it (no running
     integrals, no shared edges)."""
-    h, w = geom.h, geom.w
+    w = geom.w
     n = geom.cx.shape[0]
     nseg = max(n - 1, 1)
     X = np.empty((n, w + 1))
