@@ -242,8 +242,11 @@ def main(argv=None):
     names = [s for s in args.solvers.split(",") if s]
     kernels = _kernels()
     on = kernels is not None and kernels.enabled()
+    # The CPUs the solves may use (a taskset or cpuset holds fewer than the machine has);
+    # a checkout from before recon.kernels.cores reports the machine's.
+    cpus = kernels.cores() if hasattr(kernels, "cores") else os.cpu_count()
     report = {"iters": args.iters, "quick": args.quick, "configs": [], "kernels": on,
-              "cpus": os.cpu_count(), "loadavg_start": os.getloadavg()}
+              "cpus": cpus, "loadavg_start": os.getloadavg()}
     print(f"recon from {Path(sys.modules['recon'].__file__).parent}; fused kernels "
           f"{'on' if on else 'off'}", flush=True)
     first = None
