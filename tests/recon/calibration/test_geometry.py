@@ -192,11 +192,9 @@ def test_bad_inputs(scene):
         unmask(np.ones((5, 5)), np.zeros((5, 5)))
 
 
-def test_small_view_board_of_ten_pixel_squares_is_found():
-    # A 78 px view (the reduced designs): 4×6 squares of 10 px = 5 mask cells, under a 2×2-px
-    # random mask; the classic detector alone misses it.
-    from recon.calibration.geometry import board_homography, find_corners
-
+def _small_view():
+    """A 78 px view (the reduced designs): 4×6 squares of 10 px = 5 mask cells, under a 2×2-px
+    random mask, unmasked; with its pattern and the true inner corners (x, y)."""
     rng = np.random.default_rng(3)
     h, w, s, (nx, ny), (ox, oy) = 78, 79, 10.0, (4, 6), (19.3, 9.6)
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
@@ -213,21 +211,76 @@ def test_small_view_board_of_ten_pixel_squares_is_found():
     white = 1000.0 * mask + 3.0 * rng.standard_normal((h, w))
     checker = 1000.0 * mask * board + 3.0 * rng.standard_normal((h, w))
     img, valid = unmask(checker, white, return_valid=True)
-    pattern = (nx - 1, ny - 1)
+    tx, ty = np.meshgrid(ox + s * np.arange(1, nx), oy + s * np.arange(1, ny))
+    return img, valid, (nx - 1, ny - 1), np.stack([tx.ravel(), ty.ravel()], axis=1)
+
+
+def _board_error(img, valid, cor, pattern, truth):
+    """Largest distance of the board's inner corners (through :func:`board_homography` from
+    ``cor``) from ``truth``, both sorted."""
+    from recon.calibration.geometry import board_homography
+
+    b = board_homography(img, valid, cor, pattern, square_px=13)
+    gx, gy = np.meshgrid(np.arange(1, pattern[0] + 1) * 13.0,
+                         np.arange(1, pattern[1] + 1) * 13.0)
+    got = apply_homography(b, np.stack([gx.ravel(), gy.ravel()], axis=1))
+    return np.abs(np.sort(got, axis=0) - np.sort(truth, axis=0)).max()
+
+
+def test_small_view_board_of_ten_pixel_squares_is_found():
+    # The classic detector alone misses it.
+    from recon.calibration.geometry import find_corners
+
+    img, valid, pattern, truth = _small_view()
+    w = img.shape[1]
     for flips in ((), (1,)):
         im = img[:, ::-1] if flips else img
         vd = valid[:, ::-1] if flips else valid
         cor = find_corners(np.ascontiguousarray(im), pattern, flips)
-        b = board_homography(im, vd, cor, pattern, square_px=13)
-        gx, gy = np.meshgrid(np.arange(1, nx) * 13.0, np.arange(1, ny) * 13.0)
-        got = apply_homography(b, np.stack([gx.ravel(), gy.ravel()], axis=1))
-        tx, ty = np.meshgrid(ox + s * np.arange(1, nx), oy + s * np.arange(1, ny))
-        truth = np.stack([tx.ravel(), ty.ravel()], axis=1)
+        t = truth.copy()
         if flips:
-            truth[:, 0] = (w - 1) - truth[:, 0]
+            t[:, 0] = (w - 1) - t[:, 0]
         # find_corners returns the corners of the unflipped board in this image's coordinates.
-        err = np.abs(np.sort(got, axis=0) - np.sort(truth, axis=0)).max()
+        err = _board_error(im, vd, cor, pattern, t)
         assert err < 0.3, (flips, err)
+
+
+def test_grid_misfit_tells_a_board_from_corners_out_of_order():
+    from recon.calibration.geometry import GRID_MISFIT_MAX, grid_misfit
+
+    rng = np.random.default_rng(7)
+    cols, rows = 3, 5
+    gx, gy = np.meshgrid(np.arange(cols, dtype=float), np.arange(rows, dtype=float))
+    h = np.array([[9.5, 0.8, 20.0], [-0.6, 10.2, 11.0], [2e-3, -1e-3, 1.0]])
+    board = apply_homography(h, np.stack([gx.ravel(), gy.ravel()], axis=1))
+    assert grid_misfit(board, (cols, rows)) < 1e-6
+    noisy = board + 0.5 * rng.standard_normal(board.shape)        # 0.05 of a spacing
+    assert 0.02 < grid_misfit(noisy, (cols, rows)) < 0.1
+    swapped = board.copy()
+    swapped[[1, 5]] = swapped[[5, 1]]                          # two corners out of order
+    assert grid_misfit(swapped, (cols, rows)) > GRID_MISFIT_MAX
+    assert grid_misfit(np.zeros_like(board), (cols, rows)) == np.inf
+
+
+def test_a_detection_out_of_order_is_passed_over(monkeypatch):
+    """The classic detector reporting a board whose corners are out of order (as it did on a
+    reduced design at f/60): the next detector's board is taken, not a wrong homography."""
+    import recon.calibration.geometry as geometry
+
+    img, valid, pattern, truth = _small_view()
+    n = pattern[0] * pattern[1]
+    order = np.random.default_rng(1).permutation(n)
+    calls = []
+
+    def classic(u8, size, flags=0):
+        calls.append(size)
+        scale = u8.shape[1] / img.shape[1]
+        return True, ((truth[order] + 0.5) * scale - 0.5).astype(np.float32).reshape(-1, 1, 2)
+
+    monkeypatch.setattr(geometry.cv2, "findChessboardCorners", classic)
+    cor = geometry.find_corners(np.ascontiguousarray(img), pattern)
+    assert calls                                  # the classic detector was asked first
+    assert _board_error(img, valid, cor, pattern, truth) < 0.3
 
 
 def test_board_fields_recover_what_the_homographies_miss():
