@@ -357,19 +357,33 @@ def _fold(rv, c, b):
 
 @njit(cache=True, nogil=True, inline="always")
 def _poly_row(rv, c, colT, out):
-    """``out[e] = Σ_b (Σ_a rv[a] c[a, b]) colT[b, e]``: a polynomial folded with one row's
-    values ``rv`` first, then evaluated along the row (inner loops over columns).
+    r"""``out[e] = Σ_b (Σ_a rv[a] c[a, b]) P_b(u_e)``: a Legendre polynomial folded with one
+    row's values ``rv`` first, then evaluated along the row, where ``colT[b, e]`` holds
+    :math:`P_b(u_e)` (as :class:`RowGeometry`'s ``pceT`` and ``pccT``; ``colT[1]`` is
+    :math:`u` itself).
 
-    The maps' degree 5 (D = 6) has its own loop that keeps the six terms in registers (one
-    store per column instead of six loads and stores); it adds in the same order, so the two
-    paths agree to the bit."""
+    The maps' degree 5 (D = 6) is evaluated by Horner's rule in the monomial basis,
+
+    .. math:: \sum_b c_b P_b(u) = m_0 + u(m_1 + u(m_2 + u(m_3 + u(m_4 + u\, m_5)))),
+
+    with :math:`m_0 = c_0 - c_2/2 + 3c_4/8`, :math:`m_1 = c_1 - 3c_3/2 + 15c_5/8`,
+    :math:`m_2 = 3c_2/2 - 15c_4/4`, :math:`m_3 = 5c_3/2 - 35c_5/4`, :math:`m_4 = 35c_4/8`,
+    :math:`m_5 = 63c_5/8`: one load per column instead of six (|u| ≤ 1 and the coefficients
+    of degree ≥ 2 are small, so the round-off is that of the sum, ~10⁻¹³ mask units).  Any
+    other degree sums the tabulated values."""
     D = c.shape[0]
     if D == 6:
         c0, c1, c2 = _fold(rv, c, 0), _fold(rv, c, 1), _fold(rv, c, 2)
         c3, c4, c5 = _fold(rv, c, 3), _fold(rv, c, 4), _fold(rv, c, 5)
+        m0 = c0 - 0.5 * c2 + 0.375 * c4
+        m1 = c1 - 1.5 * c3 + 1.875 * c5
+        m2 = 1.5 * c2 - 3.75 * c4
+        m3 = 2.5 * c3 - 8.75 * c5
+        m4 = 4.375 * c4
+        m5 = 7.875 * c5
         for e in range(out.shape[0]):
-            out[e] = (c0 * colT[0, e] + c1 * colT[1, e] + c2 * colT[2, e] + c3 * colT[3, e]
-                      + c4 * colT[4, e] + c5 * colT[5, e])
+            u = colT[1, e]
+            out[e] = m0 + u * (m1 + u * (m2 + u * (m3 + u * (m4 + u * m5))))
         return
     for e in range(out.shape[0]):
         out[e] = 0.0

@@ -198,10 +198,16 @@ def test_node_weights_are_the_trapezoid_rule():
 
 @pytest.mark.parametrize("D", [6, 4])
 def test_row_polynomial_matches_numpy(D):
-    """The kernels' polynomial along a row (the maps' degree 5 has its own loop; any other
-    degree the general one): Σ_b (Σ_a rv[a] c[a, b]) colT[b, e], as numpy computes it."""
+    """The kernels' polynomial along a row (the maps' degree 5 by Horner's rule in the
+    monomial basis; any other degree from the tabulated values): Σ_b (Σ_a rv[a] c[a, b]) P_b(u),
+    as numpy's Legendre series computes it, at columns' u in [-1, 1]."""
+    from sim.maps import legendre_values
+
     rng = np.random.default_rng(D)
-    rv, c, colT = rng.normal(size=D), rng.normal(size=(D, D)), rng.normal(size=(D, 57))
-    out = np.full(57, np.nan)
+    rv, c = rng.normal(size=D), rng.normal(size=(D, D))
+    u = np.concatenate([[-1.0, 1.0], rng.uniform(-1, 1, 55)])
+    colT = np.ascontiguousarray(legendre_values(u, D - 1).T)
+    out = np.full(u.size, np.nan)
     pi._poly_row(rv, c, colT, out)
-    np.testing.assert_allclose(out, (rv @ c) @ colT, rtol=1e-12, atol=1e-12)
+    want = np.polynomial.legendre.legval(u, rv @ c)
+    np.testing.assert_allclose(out, want, rtol=1e-13, atol=1e-13 * np.abs(rv @ c).sum())
