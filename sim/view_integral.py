@@ -18,7 +18,8 @@ computes those once per row and carries all bands along (the same maths as
    the footprint's bounds at the piece taken from knots every :data:`KNOT` mask units (on the
    line between the pixel centres, then linear between knots: a bound moves by ~10⁻⁴ px from
    pixel to pixel; beyond a band's end pixels, their bounds).  The inner loop runs over the
-   bands, the scene being stored band-last.
+   bands, the scene being stored band-last; each band's :math:`g`, :math:`G = \int g` and
+   :math:`GG = \int G` at the piece's start go straight into a band-major table.
 2. *Edges* (stage 2).  Every pixel edge is located among the pieces once per wavelength node
    (a node at a band's end serves both bands): in a block's first row by a bucket table
    (buckets narrower than half the texel pitch and a quarter mask unit hold at most three
@@ -129,9 +130,8 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
     y1 = np.empty(L)
     inv_h = np.empty(L)
     acc = np.empty(L)
-    g = np.zeros((nint, L))
-    G = np.zeros((nint + 1, L))
-    GG = np.zeros((nint + 1, L))
+    G = np.zeros(L)
+    GG = np.zeros(L)
     T = np.empty((L, nint + 3, 3))
     xs = np.empty(nint + 3)
     KI = np.empty((N, w + 1), np.int64)
@@ -236,10 +236,12 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
         for l in range(L):
             xf_max = max(xf_max, xc_first[l])
             xl_min = min(xl_min, xc_last[l])
-        # Stage 1: every band's g on every piece, then G and GG.
+        # Stage 1: every band's g on every piece, and its running G and GG, written straight
+        # into the band-major table that stage 2 reads (T[l, i − lo + 1] = g, G, GG at piece
+        # i's start).
         for l in range(L):
-            G[lo, l] = 0.0
-            GG[lo, l] = 0.0
+            G[l] = 0.0
+            GG[l] = 0.0
         for i in range(lo, hi + 1):
             for l in range(L):
                 acc[l] = 0.0
@@ -274,10 +276,15 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
                             s = min(bb, y1[l]) - max(ba, y0[l])
                             acc[l] += max(s, 0.0) * inv_h[l] * f[tr, tc, l]
             Lp = xb[i + 1] - xb[i]
+            k = i - lo + 1
             for l in range(L):
-                g[i, l] = acc[l]
-                GG[i + 1, l] = GG[i, l] + G[i, l] * Lp + 0.5 * acc[l] * Lp * Lp
-                G[i + 1, l] = G[i, l] + acc[l] * Lp
+                Gl = G[l]
+                GGl = GG[l]
+                T[l, k, 0] = acc[l]
+                T[l, k, 1] = Gl
+                T[l, k, 2] = GGl
+                GG[l] = GGl + Gl * Lp + 0.5 * acc[l] * Lp * Lp
+                G[l] = Gl + acc[l] * Lp
         # Every edge located once per node: PA = its piece (−1 before the first), KI = that
         # clamped to [lo − 1, hi + 1], less lo − 1 (an index into T).  An edge moves by a
         # small fraction of a piece from one row to the next, so after the block's first
@@ -301,22 +308,16 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
         for j in range(N):
             for e in range(w + 1):
                 KI[j, e] = min(max(PA[j, e], lo - 1), hi + 1) - lo + 1
-        # Band-major tables (g, G, GG) by that index: row 0 before the row's pieces (all 0),
-        # the last past them (G and GG carried on, g = 0), so every edge evaluates alike.
+        # The table's ends, by that index: row 0 before the row's pieces (all 0), the last
+        # past them (G and GG carried on, g = 0), so every edge evaluates alike.
         nb_ = hi - lo + 2
         for l in range(L):
             T[l, 0, 0] = 0.0
             T[l, 0, 1] = 0.0
             T[l, 0, 2] = 0.0
-        for i in range(lo, hi + 1):
-            for l in range(L):
-                T[l, i - lo + 1, 0] = g[i, l]
-                T[l, i - lo + 1, 1] = G[i, l]
-                T[l, i - lo + 1, 2] = GG[i, l]
-        for l in range(L):
             T[l, nb_, 0] = 0.0
-            T[l, nb_, 1] = G[hi + 1, l]
-            T[l, nb_, 2] = GG[hi + 1, l]
+            T[l, nb_, 1] = G[l]
+            T[l, nb_, 2] = GG[l]
         xs[0] = 0.0
         for i in range(1, nb_ + 1):
             xs[i] = xb[lo + i - 1]
