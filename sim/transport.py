@@ -141,10 +141,9 @@ class Transport:
     def view_bands(self, f, k: int, bands=None, out=None) -> np.ndarray:
         """Irradiance (La, h, w) of view index ``k`` in ``bands`` (all by default) from the
         scene's bands ``f`` (H, W, La), band-last: all bands in one pass over the rows
-        (:mod:`sim.view_integral`), blocks of rows (and of at most
-        :data:`~sim.view_integral.COLUMN_CHUNK` columns) on a thread per core.  The same as
+        (:mod:`sim.view_integral`), blocks of rows on a thread per core.  The same as
         :meth:`view_band` band by band, to a few 10⁻⁵ of the peak."""
-        from sim.view_integral import COLUMN_CHUNK, column_margin, view_forward
+        from sim.view_integral import view_forward
 
         bands = list(range(self.n_bands)) if bands is None else [self._check_band(l)
                                                                   for l in bands]
@@ -165,16 +164,10 @@ class Transport:
         part, bucket, tau = self.partition(k, f.shape[1]), self.buckets(k, f.shape[1]), \
             self.throughput(k)
         step = 48           # blocks of rows: enough of them that two threads finish together
-        # Wide rows in chunks of columns, whose working set stays in a core's own cache.
-        n = -(-geom.w // COLUMN_CHUNK)
-        cuts = np.linspace(0, geom.w, n + 1).round().astype(int)
-        margin = column_margin(geom, cxn, nodes) if n > 1 else 0
-        blocks = [(r, c) for r in range(0, geom.h, step) for c in range(n)]
-        each(lambda rc: view_forward(f, self.code, self.views[k], self.maps.relay[k], part,
-                                     bucket, geom, cxn, cyl, nodes, bands, tau, out,
-                                     (rc[0], min(rc[0] + step, geom.h)),
-                                     (cuts[rc[1]], cuts[rc[1] + 1], margin)),
-             blocks)
+        each(lambda r: view_forward(f, self.code, self.views[k], self.maps.relay[k], part,
+                                    bucket, geom, cxn, cyl, nodes, bands, tau, out,
+                                    (r, min(r + step, geom.h))),
+             range(0, geom.h, step))
         return out
 
     def view_band(self, f, k: int, l: int, out=None) -> np.ndarray:

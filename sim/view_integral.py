@@ -30,9 +30,7 @@ computes those once per row and carries all bands along (the same maths as
    :math:`GG = \int G`, as in :mod:`sim.pixel_integral`.
 
 Each row's lower pixel edge is the next row's upper one, so the footprints' y bounds are
-evaluated once per edge in a block of rows, not twice.  Wide rows are integrated in chunks of
-columns, each widened by :func:`column_margin` so that its sums are the whole row's: a working
-set a core's own cache holds better (:data:`COLUMN_CHUNK`).
+evaluated once per edge in a block of rows, not twice.
 
 The result equals :func:`~sim.pixel_integral.band_forward` band by band to a few 10⁻⁵ of the
 view's peak (the footprints' y bounds are interpolated where that kernel interpolates the
@@ -47,15 +45,10 @@ from numba import njit
 
 from sim.pixel_integral import _bracket, _poly_row, _row_gaps, _row_span, max_pieces
 
-__all__ = ["KNOT", "COLUMN_CHUNK", "Buckets", "buckets", "column_margin", "view_forward"]
+__all__ = ["KNOT", "Buckets", "buckets", "view_forward"]
 
 #: Mask units between the knots at which every band's footprint bounds are interpolated.
 KNOT = 2.0
-#: Columns of a view integrated together at most (:func:`view_forward`'s ``cols``).  On
-#: ``paper`` (900 columns, 65 nodes, 26 bands) a row's edges at every node and its bands'
-#: running integrals take ~3 MB; a view's rows in halves take 6–8 % less time than whole
-#: (``tools/bench_transport.py``), quarters no less than halves (their margins).
-COLUMN_CHUNK = 512
 
 
 class Buckets:
@@ -105,8 +98,7 @@ def _count(x, xbp, start, x0, inv):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, pre, pceT,
-            pccT, cxn, cyl, boff, bnodes, bands, tau, out, r_start, r_end, pmax, stats, cb,
-            o0, o1):
+            pccT, cxn, cyl, boff, bnodes, bands, tau, out, r_start, r_end, pmax, stats):
     w = pccT.shape[1]
     N = cxn.shape[0]
     L = cyl.shape[0]
@@ -154,8 +146,8 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
     n_mask = code.shape[0]
     for r in range(r_start, r_end):
         for l in range(L):
-            for c in range(o0, o1):
-                out[l, r, cb + c] = 0.0
+            for c in range(w):
+                out[l, r, c] = 0.0
         # The pixel edges' mask x at every node, every band's footprint bounds in mask y at
         # the pixel centres, and the row's y gaps (shared by every band and pixel).
         for j in range(N):
@@ -365,39 +357,13 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
                     wid = 0.5 * ((X[js, c + 1] - X[js, c]) + (X[jt, c + 1] - X[jt, c]))
                     accv[c] += (mG[s, c + 1] - mG[s, c]) / wid
             bl = bands[l]
-            for c in range(o0, o1):
-                out[l, r, cb + c] = tau[bl, r, cb + c] * accv[c] / nseg
-
-
-def column_margin(geom, cxn, band_nodes) -> int:
-    r"""Columns beyond a range of pixels that decide those pixels' sums,
-
-    .. math:: m = \Big\lceil \frac{s/2 + \mathrm{KNOT}}{p} \Big\rceil + 3,
-
-    with :math:`s` the widest sweep of a pixel edge over a band and :math:`p` the narrowest
-    pixel, both in mask units (taken at the view's first, middle and last rows).  A pixel's
-    sum reads the pieces its edges sweep over its band (up to :math:`s/2` past its centre),
-    their footprint bounds from the knots on either side (up to :data:`KNOT` further) and each
-    knot's bracketing pixel centres (one pixel more).  With :math:`m` columns on either side, a
-    range of pixels integrated on its own comes out as it does within the whole row (to the
-    round-off of running integrals that start elsewhere): no bound it reads is clamped or
-    extrapolated at the range's ends.
-    """
-    pitch, sweep = np.inf, 0.0
-    for r in (0, geom.h // 2, geom.h - 1):
-        X = np.einsum("a,jab,be->je", geom.prc[r], np.asarray(cxn, np.float64), geom.pceT)
-        pitch = min(pitch, float(np.abs(np.diff(X, axis=1)).min()))
-        for b in band_nodes:
-            sweep = max(sweep, float(np.abs(X[b[-1]] - X[b[0]]).max()))
-    if not pitch > 0:
-        raise ValueError("pixel edges coincide in mask x")
-    return int(np.ceil((0.5 * sweep + KNOT) / pitch)) + 3
+            for c in range(w):
+                out[l, r, c] = tau[bl, r, c] * accv[c] / nseg
 
 
 def view_forward(f, code, view, relay, part, bucket: Buckets, geom, cxn, cyl, band_nodes,
-                 bands, tau, out, rows=None, cols=None):
-    """Irradiance (La, h, w) float32 of one view in the bands ``bands`` (rows ``rows``,
-    columns ``cols``).
+                 bands, tau, out, rows=None):
+    """Irradiance (La, h, w) float32 of one view in the bands ``bands`` (rows ``rows``).
 
     Parameters
     ----------
@@ -425,36 +391,22 @@ def view_forward(f, code, view, relay, part, bucket: Buckets, geom, cxn, cyl, ba
     tau : (L, h, w) float32
         The view's throughput in every band.
     out : (La, h, w) float32
-        Written at ``rows`` (all rows by default) and ``cols``.
-    rows : (r0, r1), optional
-    cols : (c0, c1, margin), optional
-        Only the columns c0 … c1 − 1, integrated with ``margin`` columns on either side
-        (:func:`column_margin`) and not the rest of the row: a smaller working set (every edge
-        at every node, every band's running integrals) than the whole row's
-        (:data:`COLUMN_CHUNK`).
+        Written at ``rows`` (all rows by default).
     """
     xb, mcol, tcol = part
     f = np.asarray(f)
     if f.dtype != np.float32 or not f.flags.c_contiguous or f.ndim != 3:
         raise ValueError("f must be a C-contiguous (H, W, L) float32 array")
     r0, r1 = (0, geom.h) if rows is None else (int(rows[0]), int(rows[1]))
-    pceT, pccT, cb, o0, o1 = geom.pceT, geom.pccT, 0, 0, geom.w
-    if cols is not None:
-        c0, c1, margin = (int(v) for v in cols)
-        if not 0 <= c0 < c1 <= geom.w or margin < 0:
-            raise ValueError(f"columns {c0}..{c1} (margin {margin}) outside 0..{geom.w}")
-        cb, ce = max(c0 - margin, 0), min(c1 + margin, geom.w)
-        pceT = np.ascontiguousarray(pceT[:, cb:ce + 1])
-        pccT = np.ascontiguousarray(pccT[:, cb:ce])
-        o0, o1 = c0 - cb, c1 - cb
     boff = np.concatenate([[0], np.cumsum([len(b) for b in band_nodes])]).astype(np.int64)
     bnodes = np.concatenate([np.asarray(b, np.int64) for b in band_nodes])
     stats = np.zeros(2, np.int64)
     pmax = max_pieces(relay, f.shape[0]) + 16
     _kernel(f, code, int(view), np.asarray(relay, np.float64), f.shape[0], xb, mcol, tcol,
-            bucket.xbp, bucket.start, bucket.x0, bucket.inv, geom.prc, geom.pre, pceT, pccT,
-            np.ascontiguousarray(cxn, np.float64), np.ascontiguousarray(cyl, np.float64), boff,
-            bnodes, np.asarray(bands, np.int64), tau, out, r0, r1, pmax, stats, cb, o0, o1)
+            bucket.xbp, bucket.start, bucket.x0, bucket.inv, geom.prc, geom.pre, geom.pceT,
+            geom.pccT, np.ascontiguousarray(cxn, np.float64),
+            np.ascontiguousarray(cyl, np.float64), boff, bnodes,
+            np.asarray(bands, np.int64), tau, out, r0, r1, pmax, stats)
     if stats[1]:
         raise RuntimeError(f"{int(stats[1])} rows have more y gaps than the {pmax} expected")
     return out

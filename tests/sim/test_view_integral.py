@@ -89,39 +89,6 @@ def test_a_subset_of_bands_and_blocks_of_rows(small_transport):
 
 
 @pytest.mark.mitsuba
-def test_chunks_of_columns_equal_the_whole_row(small_transport):
-    """Columns integrated in chunks, each with :func:`column_margin` columns on either side,
-    come out as within the whole row (their running integrals start elsewhere: round-off); with
-    no margin the pixels by a cut read bounds clamped at the chunk's end, and differ."""
-    from sim.view_integral import column_margin, view_forward
-
-    tr = small_transport
-    f = np.random.default_rng(5).random((240, 230, tr.n_bands)).astype(np.float32)
-    k, bands = 2, list(range(tr.n_bands))
-    geom = tr.geometry(k, 0)
-    mask = tr.maps.mask[k]
-    args = (f, tr.code, tr.views[k], tr.maps.relay[k], tr.partition(k, f.shape[1]),
-            tr.buckets(k, f.shape[1]), geom, mask[:, 0],
-            np.stack([mask[b, 1].mean(axis=0) for b in tr.band_nodes]), tr.band_nodes, bands,
-            tr.throughput(k))
-    whole = view_forward(*args, np.empty((len(bands), geom.h, geom.w), np.float32))
-    margin = column_margin(geom, mask[:, 0], tr.band_nodes)
-    assert 0 < margin < geom.w // 4
-    cuts = [0, geom.w // 3, geom.w // 2, geom.w]
-    for m in (margin, 0):
-        chunks = np.full_like(whole, np.nan)
-        for c0, c1 in zip(cuts[:-1], cuts[1:]):
-            view_forward(*args, chunks, (0, geom.h), (c0, c1, m))
-        err = float(np.abs(chunks - whole).max() / whole.max())
-        if m:
-            assert err < 1e-6
-        else:
-            assert err > 1e-6
-    with pytest.raises(ValueError):
-        view_forward(*args, chunks, None, (5, 5, margin))
-
-
-@pytest.mark.mitsuba
 def test_a_monochromatic_band(shared_cache):
     """One node (a band-pass capture at one wavelength): G at the edges, no segments."""
     pytest.importorskip("mitsuba")
