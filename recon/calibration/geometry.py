@@ -152,10 +152,7 @@ def find_corners(img: np.ndarray, pattern_size, flips=(), win: int | None = None
         raise InputError(f"checkerboard with {size[0]}x{size[1]} inner corners not found "
                          f"in a {h}x{w} px view")
     corners = np.ascontiguousarray(corners.reshape(-1, 1, 2).astype(np.float32))
-    grid = corners.reshape(size[1], size[0], 2).astype(np.float64)
-    spacing = float(np.median(np.concatenate([
-        np.linalg.norm(np.diff(grid, axis=1), axis=2).ravel(),
-        np.linalg.norm(np.diff(grid, axis=0), axis=2).ravel()])))
+    spacing = corner_spacing(corners, size)
     half = int(win) if win is not None else int(np.clip(round(spacing / 3.0), 2, 5))
     corners = cv2.cornerSubPix(u8, corners, (half, half), (-1, -1), _SUBPIX_CRITERIA)
     # OpenCV 5 returns (N, 2), 4.x (N, 1, 2).
@@ -171,6 +168,16 @@ def find_corners(img: np.ndarray, pattern_size, flips=(), win: int | None = None
     if 0 in flips:
         pts[:, 1] = (h - 1) - pts[:, 1]
     return pts
+
+
+def corner_spacing(corners, pattern_size) -> float:
+    """Median distance between neighbouring corners (along rows and columns) of (N, 2) or
+    (K, N, 2) corners, row-major boards of ``pattern_size`` (cols, rows)."""
+    cols, rows = int(pattern_size[0]), int(pattern_size[1])
+    grid = np.asarray(corners, dtype=np.float64).reshape(-1, rows, cols, 2)
+    return float(np.median(np.concatenate([
+        np.linalg.norm(np.diff(grid, axis=2), axis=3).ravel(),
+        np.linalg.norm(np.diff(grid, axis=1), axis=3).ravel()])))
 
 
 #: Largest r.m.s. distance, in corner spacings, of a detection's corners from the best
@@ -196,10 +203,7 @@ def grid_misfit(corners, size) -> float:
     if h is None:
         return np.inf
     fit = cv2.perspectiveTransform(grid[None], h)[0]
-    g = c.reshape(rows, cols, 2)
-    spacing = float(np.median(np.concatenate([
-        np.linalg.norm(np.diff(g, axis=1), axis=2).ravel(),
-        np.linalg.norm(np.diff(g, axis=0), axis=2).ravel()])))
+    spacing = corner_spacing(c, size)
     if not spacing > 0:
         return np.inf
     return float(np.sqrt(np.mean(np.sum((fit - c) ** 2, axis=1)))) / spacing
@@ -332,12 +336,7 @@ def board_square_px(corners, pattern_size) -> int:
     A board sampled a little finer than the view warps well under bilinear interpolation;
     much coarser or much finer ones alias.
     """
-    cols, rows = int(pattern_size[0]), int(pattern_size[1])
-    grid = np.asarray(corners, dtype=np.float64).reshape(-1, rows, cols, 2)
-    spacing = np.median(np.concatenate([
-        np.linalg.norm(np.diff(grid, axis=2), axis=3).ravel(),
-        np.linalg.norm(np.diff(grid, axis=1), axis=3).ravel()]))
-    return max(8, int(round(1.3 * spacing)))
+    return max(8, int(round(1.3 * corner_spacing(corners, pattern_size))))
 
 
 def board_homography(img: np.ndarray, valid: np.ndarray, corners: np.ndarray, pattern_size,
