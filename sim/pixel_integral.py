@@ -20,24 +20,37 @@ between two wavelength nodes its x-edges move linearly.  The integral then separ
    \int_{y_0}^{y_1} M_k f\, dy` is piecewise constant on the *partition* of the mask's x axis by
    the mask-cell and texel column boundaries (:func:`partition`); each piece of
    :math:`[y_0, y_1]` between mask-row and texel-row boundaries contributes its length exactly.
-2. *Columns and wavelength* (stage 2).  With :math:`G = \int g` and :math:`GG = \int G` (exact,
-   piecewise linear and quadratic), the mean over a segment of an edge moving from :math:`x_0`
-   to :math:`x_1` is :math:`\overline{G} = (GG(x_1) - GG(x_0))/(x_1 - x_0)`, so
+2. *Columns and wavelength* (stage 2).  With :math:`G = \int g`, :math:`GG = \int G` and
+   :math:`GGG = \int GG` (exact: piecewise linear, quadratic and cubic), the mean of
+   :math:`G` over a band at an edge that moves from :math:`x_0` through :math:`x_m` to
+   :math:`x_1` is a closed form in :math:`GG` and :math:`GGG` at the path's two ends
+   (:func:`panel_mean`): the path is the one whose band parameter :math:`t \in [0, 1]` is
+   quadratic in :math:`x` through :math:`(x_0, 0)`, :math:`(x_m, \tfrac12)`, :math:`(x_1, 1)`,
+
+   .. math:: \overline{G} = \int_{x_0}^{x_1} G(x)\, t'(x)\, dx, \qquad
+             t'(x) = \frac{1}{D} + \kappa\,(2x - x_0 - x_1), \quad D = x_1 - x_0,
+
+   so that :math:`\overline{G} = \Delta GG / D + \kappa\,\big(2 (D\, GG(x_1) - \Delta GGG)
+   - D\, \Delta GG\big)`.  A band is cut into :math:`S` equal *panels* (wavelength nodes
+   at their ends and middles, :func:`sim.maps.band_nodes`; one on the designs shipped), and
 
    .. math:: E_l(p) = \tau_l(p)\, \frac{1}{S} \sum_{s=1}^{S}
              \frac{\overline{G}_s(b) - \overline{G}_s(a)}{\bar w_s},
 
-   with :math:`\bar w_s` the footprint's mean width over segment :math:`s` (the edges of
-   neighbouring pixels are shared).
+   with :math:`\bar w_s` the footprint's mean width over panel :math:`s` (Simpson's rule over
+   its three nodes; the edges of neighbouring pixels are shared).  The prism's dispersion is
+   a smooth curve in λ, which a quadratic follows across a whole band to 2·10⁻⁴ px on
+   ``paper`` (9·10⁻⁴ on ``small``) where straight lines between nodes needed 2–5 nodes a band
+   for 3·10⁻³: the edges are located at the panels' ends only.
 
 Nothing is sampled: the result is the integral itself, up to the maps' fit (~10⁻³ px) and the
-straight-line motion of an edge between nodes (≤ ``tolerance_px`` of :func:`sim.maps.band_nodes`).
+quadratic path of an edge across a panel (≤ ``tolerance_px`` of :func:`sim.maps.band_nodes`).
 :func:`band_forward` and its exact adjoint :func:`band_adjoint` (a dot test checks it) are
 Numba kernels for one view and one band (the exact operator's); :mod:`sim.view_integral` takes
 every band of a view in one pass (the frames').
-:math:`G` and :math:`GG` are float64: they accumulate over a whole row (~2000 pieces on
-``paper``) and the differences taken between neighbouring edges would lose every digit in
-float32.
+:math:`G`, :math:`GG` and :math:`GGG` are float64: they accumulate over a whole row (~2000
+pieces on ``paper``) and the differences taken between neighbouring edges would lose every
+digit in float32.
 """
 
 from __future__ import annotations
@@ -47,8 +60,8 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["disc_fraction", "throughput_images", "node_weights", "partition",
-           "band_forward", "band_adjoint", "RowGeometry", "COARSE_PX"]
+__all__ = ["disc_fraction", "throughput_images", "node_weights", "partition", "panel_mean",
+           "band_forward", "band_adjoint", "RowGeometry", "COARSE_PX", "STILL", "STRAIGHT"]
 
 
 # ------------------------------------------------------------------------------ vignetting
@@ -212,17 +225,22 @@ def _exact_tau(pr, pc, coef_t, coef_e, wts, half, todo, out):
 
 
 def node_weights(n: int) -> np.ndarray:
-    """Trapezoid weights of ``n`` equally spaced nodes over a band (one node: 1)."""
+    """Weights of a band's ``n`` = 2S + 1 equally spaced nodes for its mean: Simpson's rule on
+    each of its S panels (1, 4, 1)/6, averaged (one node: 1)."""
+    if n == 1:
+        return np.ones(1)
+    if n < 3 or n % 2 == 0:
+        raise ValueError(f"a band has one node or 2S + 1 (panels' ends and middles), not {n}")
     w = np.ones(n)
-    if n > 1:
-        w[0] = w[-1] = 0.5
+    w[1::2] = 4.0
+    w[2:-1:2] = 2.0
     return w / w.sum()
 
 
 def throughput_images(maps, k: int, band_nodes) -> np.ndarray:
     r"""Every band's throughput τ at the pixel centres of view ``k``: (L, h, w) float32.
 
-    τ is the mean over the band's wavelength nodes (trapezoid rule) of :math:`V\,T`
+    τ is the mean over the band's wavelength nodes (:func:`node_weights`) of :math:`V\,T`
     (:mod:`sim.maps`).  T is smooth (a low-order polynomial) and is interpolated bilinearly
     from a grid every :data:`COARSE_PX` pixels (error < 10⁻⁵ of T); V is 1 away from the
     stop's shadow, and wherever a coarse cell may be partly vignetted at any node of the band
@@ -316,7 +334,7 @@ class RowGeometry:
     """What the kernels need of one view and one band, as plain arrays.
 
     ``cx`` (n, D, D): the mask-x polynomial at each of the band's nodes; ``cy`` (D, D): the
-    mask-y polynomial averaged over them; ``pre``/``prc`` (h+1, D)/(h, D): row polynomials at
+    mask-y polynomial averaged over them (:func:`node_weights`); ``pre``/``prc`` (h+1, D)/(h, D): row polynomials at
     the pixel rows' edges and centres; ``pce``/``pcc`` (w+1, D)/(w, D): column polynomials at
     the pixel columns' edges and centres (``pceT``/``pccT``: the same, transposed).
     """
@@ -336,7 +354,8 @@ class RowGeometry:
         self.pceT = np.ascontiguousarray(self.pce.T)
         self.pccT = np.ascontiguousarray(self.pcc.T)
         self.cx = np.ascontiguousarray(maps.mask[k, list(nodes), 0])
-        self.cy = np.ascontiguousarray(maps.mask[k, list(nodes), 1].mean(axis=0))
+        self.cy = np.ascontiguousarray(np.tensordot(node_weights(len(nodes)),
+                                                    maps.mask[k, list(nodes), 1], 1))
 
     def x_range(self, margin: float = 2.0):
         """The mask-x span of the view's pixel edges at the band's nodes, widened by ``margin``."""
@@ -528,13 +547,50 @@ def _locate(x, xb, lo, hi, ptr):
     return ptr
 
 
+#: Below this |x₁ − x₀| (mask units) an edge does not move across a panel: G at its midpoint.
+STILL = 1e-9
+#: Below this |x₁ − x₀| (mask units) a panel's path is taken straight (κ = 0): its sag, ~D²
+#: times the dispersion's relative curvature, is then far below the maps' round-off.
+STRAIGHT = 1e-3
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _kappa(x0, xm, x1):
+    r""":math:`\kappa` of the path through :math:`(x_0, 0), (x_m, \frac12), (x_1, 1)` whose
+    :math:`t` is quadratic in :math:`x`: :math:`t = (x - x_0)/D + \kappa (x - x_0)(x - x_1)`."""
+    D = x1 - x0
+    a = xm - x0
+    return (0.5 * D - a) / (D * a * (a - D)) if abs(D) > STRAIGHT else 0.0
+
+
+@njit(cache=True, nogil=True, inline="always")
+def panel_mean(x0, xm, x1, GG0, GG1, GGG0, GGG1):
+    r"""Mean over a panel of :math:`G` at an edge on the path through :math:`x_0, x_m, x_1`
+    (module notes), from :math:`GG` and :math:`GGG` at its ends (:math:`|x_1 - x_0|` >
+    :data:`STILL`):
+
+    .. math:: \overline{G} = \frac{\Delta GG}{D} + \kappa\,\big(2 (D\, GG_1 - \Delta GGG)
+              - D\, \Delta GG\big),
+
+    the integral of :math:`G\, t'` written so that the large running integrals cancel first.
+    """
+    return _panel_mean_d(x0, xm, x1, GG1 - GG0, GG1, GGG1 - GGG0)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _panel_mean_d(x0, xm, x1, dGG, GG1, dGGG):
+    """:func:`panel_mean` from the differences ΔGG, ΔGGG and GG₁."""
+    D = x1 - x0
+    return dGG / D + _kappa(x0, xm, x1) * (2.0 * (D * GG1 - dGGG) - D * dGG)
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pceT, pccT, cx, cy, tau,
             out, fbar, adjoint, pmax):
     h = prc.shape[0]
     w = pccT.shape[1]
     n = cx.shape[0]
-    nseg = max(n - 1, 1)
+    npan = max((n - 1) // 2, 1)
     nint = mcol.shape[0]
     ay, by = relay[2], relay[3]
     X = np.empty((n, w + 1))
@@ -544,14 +600,18 @@ def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pceT, pccT, cx
     g = np.zeros(nint)
     G = np.zeros(nint + 1)
     GG = np.zeros(nint + 1)
+    GGG = np.zeros(nint + 1)
     ag = np.zeros(nint)
     aG = np.zeros(nint + 1)
     aGG = np.zeros(nint + 1)
-    GN = np.empty((n, w + 1))   # GG of every edge at every node (forward)
-    an = np.empty(n)            # the adjoint at one edge
+    aGGG = np.zeros(nint + 1)
+    GN = np.zeros((n, w + 1))   # GG of every edge at the panels' ends (forward)
+    GN3 = np.zeros((n, w + 1))  # and GGG
+    an = np.empty(n)            # the adjoint at one edge: of GG
+    an3 = np.empty(n)           # and of GGG
     ptrs = np.zeros(n, np.int64)
-    mG = np.empty((nseg, w + 1))
-    amG = np.zeros((nseg, w + 1))
+    mG = np.empty((npan, w + 1))
+    amG = np.zeros((npan, w + 1))
     accv = np.empty(w)
     plen = np.zeros((w + 1, pmax))
     bounds = np.empty(pmax + 1)
@@ -579,9 +639,10 @@ def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pceT, pccT, cx
         if hi < lo:
             continue
         if not adjoint:
-            # Stage 1: the rows' mean of M f on every piece, then its integrals G and GG.
+            # Stage 1: the rows' mean of M f on every piece, then its integrals G, GG, GGG.
             G[lo] = 0.0
             GG[lo] = 0.0
+            GGG[lo] = 0.0
             c = 0
             for i in range(lo, hi + 1):
                 acc = 0.0
@@ -600,53 +661,55 @@ def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pceT, pccT, cx
                             acc += (a + t * (plen[c + 1, p] - a)) * f[tr, tc]
                 g[i] = acc
                 L = xb[i + 1] - xb[i]
+                GGG[i + 1] = GGG[i] + L * (GG[i] + L * (0.5 * G[i] + L * acc / 6.0))
                 GG[i + 1] = GG[i] + G[i] * L + 0.5 * acc * L * L
                 G[i + 1] = G[i] + acc * L
-            # Stage 2: every edge's GG at every node (one walk along the row per node: an
-            # edge moves on by a piece or two), then its mean G over each segment.  The
-            # divisions are most of this stage's work: kept in plain loops along the row, they
-            # vectorise.
-            for j in range(n):
+            # Stage 2: every edge's GG and GGG at the panels' ends (one walk along the row per
+            # node: an edge moves on by a piece or two), then its mean G over each panel.
+            for j in range(0, n, 2):
                 ptr = lo
                 for e in range(w + 1):
                     k = _locate(X[j, e], xb, lo, hi, ptr)
                     ptr = max(k, lo)
-                    GN[j, e] = _gg(X[j, e], k, xb, g, G, GG, lo, hi)
-            for s in range(nseg):
-                t1 = min(s + 1, n - 1)
-                for e in range(w + 1):
-                    mG[s, e] = (GN[t1, e] - GN[s, e]) / (X[t1, e] - X[s, e])
-                # Coinciding nodes (a monochromatic band has one): G at the edge itself.
+                    GN[j, e], GN3[j, e] = _ggg(X[j, e], k, xb, g, G, GG, GGG, lo, hi)
+            for s in range(npan):
+                j0, jm, j1 = 2 * s, min(2 * s + 1, n - 1), min(2 * s + 2, n - 1)
                 ptr = lo
                 for e in range(w + 1):
-                    if n == 1 or not abs(X[t1, e] - X[s, e]) > 1e-9:
-                        xm = 0.5 * (X[s, e] + X[t1, e])
+                    x0, x1 = X[j0, e], X[j1, e]
+                    if n > 1 and abs(x1 - x0) > STILL:
+                        mG[s, e] = panel_mean(x0, X[jm, e], x1, GN[j0, e], GN[j1, e],
+                                              GN3[j0, e], GN3[j1, e])
+                    else:
+                        # The edge stands still (a monochromatic band has one node): G there.
+                        xm = 0.5 * (x0 + x1)
                         k = _locate(xm, xb, lo, hi, ptr)
                         ptr = max(k, lo)
                         mG[s, e] = _g1(xm, k, xb, g, G, lo, hi)
             for c in range(w):
                 accv[c] = 0.0
-            for s in range(nseg):
-                t1 = min(s + 1, n - 1)
+            for s in range(npan):
+                j0, jm, j1 = 2 * s, min(2 * s + 1, n - 1), min(2 * s + 2, n - 1)
                 for c in range(w):
-                    wid = 0.5 * ((X[s, c + 1] - X[s, c]) + (X[t1, c + 1] - X[t1, c]))
+                    wid = _mean_width(X, j0, jm, j1, c)
                     accv[c] += (mG[s, c + 1] - mG[s, c]) / wid
             for c in range(w):
-                out[r, c] = tau[r, c] * accv[c] / nseg
+                out[r, c] = tau[r, c] * accv[c] / npan
         else:
             for i in range(lo, hi + 1):
                 ag[i] = 0.0
             for i in range(lo, hi + 2):
                 aG[i] = 0.0
                 aGG[i] = 0.0
-            for s in range(nseg):
+                aGGG[i] = 0.0
+            for s in range(npan):
                 for e in range(w + 1):
                     amG[s, e] = 0.0
-            for s in range(nseg):
-                t1 = min(s + 1, n - 1)
+            for s in range(npan):
+                j0, jm, j1 = 2 * s, min(2 * s + 1, n - 1), min(2 * s + 2, n - 1)
                 for c in range(w):
-                    eb = out[r, c] * tau[r, c] / nseg
-                    wid = 0.5 * ((X[s, c + 1] - X[s, c]) + (X[t1, c + 1] - X[t1, c]))
+                    eb = out[r, c] * tau[r, c] / npan
+                    wid = _mean_width(X, j0, jm, j1, c)
                     amG[s, c + 1] += eb / wid
                     amG[s, c] -= eb / wid
             for j in range(n):
@@ -654,39 +717,47 @@ def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pceT, pccT, cx
             for e in range(w + 1):
                 for j in range(n):
                     an[j] = 0.0
-                for s in range(nseg):
+                    an3[j] = 0.0
+                for s in range(npan):
                     a = amG[s, e]
                     if a == 0.0:
                         continue
-                    x0s = X[s, e]
-                    x1s = X[min(s + 1, n - 1), e]
-                    if n > 1 and abs(x1s - x0s) > 1e-9:
-                        an[s + 1] += a / (x1s - x0s)
-                        an[s] -= a / (x1s - x0s)
+                    j0, jm, j1 = 2 * s, min(2 * s + 1, n - 1), min(2 * s + 2, n - 1)
+                    x0, x1 = X[j0, e], X[j1, e]
+                    if n > 1 and abs(x1 - x0) > STILL:
+                        # panel_mean = (1/D + κD) GG₁ + (κD − 1/D) GG₀ − 2κ (GGG₁ − GGG₀).
+                        D = x1 - x0
+                        kap = _kappa(x0, X[jm, e], x1)
+                        an[j1] += a * (1.0 / D + kap * D)
+                        an[j0] += a * (kap * D - 1.0 / D)
+                        an3[j1] -= a * 2.0 * kap
+                        an3[j0] += a * 2.0 * kap
                     else:
-                        xm = 0.5 * (x0s + x1s)
-                        _g1_adj(xm, _locate(xm, xb, lo, hi, ptrs[s]), a, xb, ag, aG, lo, hi)
-                for j in range(n):
+                        xm = 0.5 * (x0 + x1)
+                        _g1_adj(xm, _locate(xm, xb, lo, hi, ptrs[jm]), a, xb, ag, aG, lo, hi)
+                for j in range(0, n, 2):
                     k = _locate(X[j, e], xb, lo, hi, ptrs[j])
                     ptrs[j] = max(k, lo)
                     aa = an[j]
-                    if aa == 0.0 or k < lo:
+                    a3 = an3[j]
+                    if (aa == 0.0 and a3 == 0.0) or k < lo:
                         continue
-                    # ∂GG(x)/∂(GG_k, G_k, g_k) = (1, d, d²/2), d = x − xb_k.
-                    if k > hi:
-                        aGG[hi + 1] += aa
-                        aG[hi + 1] += aa * (X[j, e] - xb[hi + 1])
-                        continue
-                    dd = X[j, e] - xb[k]
-                    aGG[k] += aa
-                    aG[k] += aa * dd
-                    ag[k] += aa * 0.5 * dd * dd
+                    # ∂(GG, GGG)(x)/∂(GGG_k, GG_k, G_k, g_k): (0, 1, d, d²/2) and
+                    # (1, d, d²/2, d³/6), d = x − xb_k (past the row: g = 0).
+                    kk = min(k, hi + 1)
+                    dd = X[j, e] - xb[kk]
+                    aGGG[kk] += a3
+                    aGG[kk] += aa + a3 * dd
+                    aG[kk] += dd * (aa + 0.5 * a3 * dd)
+                    if k <= hi:
+                        ag[k] += dd * dd * (0.5 * aa + a3 * dd / 6.0)
             # The integrals' recursions run backwards.
             for i in range(hi, lo - 1, -1):
                 L = xb[i + 1] - xb[i]
-                ag[i] += aG[i + 1] * L + aGG[i + 1] * 0.5 * L * L
-                aG[i] += aG[i + 1] + aGG[i + 1] * L
-                aGG[i] += aGG[i + 1]
+                ag[i] += L * (aG[i + 1] + L * (0.5 * aGG[i + 1] + L * aGGG[i + 1] / 6.0))
+                aG[i] += aG[i + 1] + L * (aGG[i + 1] + 0.5 * L * aGGG[i + 1])
+                aGG[i] += aGG[i + 1] + aGGG[i + 1] * L
+                aGGG[i] += aGGG[i + 1]
             c = 0
             for i in range(lo, hi + 1):
                 mc = mcol[i]
@@ -704,14 +775,23 @@ def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pceT, pccT, cx
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _gg(x, k, xb, g, G, GG, lo, hi):
+def _mean_width(X, j0, jm, j1, c):
+    """Pixel ``c``'s footprint width over a panel: Simpson's rule over its three nodes."""
+    return ((X[j0, c + 1] - X[j0, c]) + 4.0 * (X[jm, c + 1] - X[jm, c])
+            + (X[j1, c + 1] - X[j1, c])) / 6.0
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _ggg(x, k, xb, g, G, GG, GGG, lo, hi):
+    """(GG, GGG) at ``x`` in piece ``k`` (0 before the row's pieces; past them g = 0)."""
     if k < lo:
-        return 0.0
+        return 0.0, 0.0
     if k > hi:
         d = x - xb[hi + 1]
-        return GG[hi + 1] + d * G[hi + 1]
+        return GG[hi + 1] + d * G[hi + 1], GGG[hi + 1] + d * (GG[hi + 1] + 0.5 * d * G[hi + 1])
     d = x - xb[k]
-    return GG[k] + d * (G[k] + 0.5 * d * g[k])
+    return (GG[k] + d * (G[k] + 0.5 * d * g[k]),
+            GGG[k] + d * (GG[k] + d * (0.5 * G[k] + d * g[k] / 6.0)))
 
 
 @njit(cache=True, nogil=True, inline="always")

@@ -48,7 +48,7 @@ __all__ = ["Transport", "SEEDS", "cache_dir", "build_transport", "load_or_build"
 SEEDS = {"captures": 0, "scene": 1, "oracle": 2}
 #: Counters for tests and benchmarks: transports traced, loaded from disk.
 STATS = {"built": 0, "loaded": 0}
-_FORMAT = 2
+_FORMAT = 3
 #: Trace settings (part of the cache key).
 TRACE = {"degree": 5, "aperture_rays": 16, "tolerance_px": 0.003}
 
@@ -143,6 +143,7 @@ class Transport:
         scene's bands ``f`` (H, W, La), band-last: all bands in one pass over the rows
         (:mod:`sim.view_integral`), blocks of rows on a thread per core.  The same as
         :meth:`view_band` band by band, to a few 10⁻⁵ of the peak."""
+        from sim.pixel_integral import node_weights
         from sim.view_integral import view_forward
 
         bands = list(range(self.n_bands)) if bands is None else [self._check_band(l)
@@ -156,7 +157,8 @@ class Transport:
         where = {j: i for i, j in enumerate(used)}
         mask = self.maps.mask[k]
         cxn = mask[used, 0]
-        cyl = np.stack([mask[self.band_nodes[l], 1].mean(axis=0) for l in bands])
+        cyl = np.stack([np.tensordot(node_weights(len(self.band_nodes[l])),
+                                     mask[self.band_nodes[l], 1], 1) for l in bands])
         nodes = [np.array([where[int(j)] for j in self.band_nodes[l]], np.int64) for l in bands]
         geom = self.geometry(k, bands[0])
         if out is None:

@@ -18,16 +18,17 @@ computes those once per row and carries all bands along (the same maths as
    the footprint's bounds at the piece taken from knots every :data:`KNOT` mask units (on the
    line between the pixel centres, then linear between knots: a bound moves by ~10⁻⁴ px from
    pixel to pixel; beyond a band's end pixels, their bounds).  The inner loop runs over the
-   bands, the scene being stored band-last; each band's :math:`g`, :math:`G = \int g` and
-   :math:`GG = \int G` at the piece's start go straight into a band-major table.
-2. *Edges* (stage 2).  Every pixel edge is located among the pieces once per wavelength node
-   (a node at a band's end serves both bands): in a block's first row by a bucket table
+   bands, the scene being stored band-last; each band's :math:`g` and its running integrals
+   :math:`G`, :math:`GG`, :math:`GGG` at the piece's start go straight into a band-major
+   table.
+2. *Edges* (stage 2).  Every pixel edge is located among the pieces at every panel's ends
+   (a node at a band's end serves both bands; the panels' middles only shape the path): in a block's first row by a bucket table
    (buckets narrower than half the texel pitch and a quarter mask unit hold at most three
    breakpoints, so three comparisons added replace a walk whose branches mispredict), in the
    next rows by stepping from the piece it was in a row above (an edge moves by a small
    fraction of a piece from row to row: the step is almost always none).  Each band then
-   takes its mean of :math:`G = \int g` over each segment between nodes from
-   :math:`GG = \int G`, as in :mod:`sim.pixel_integral`.
+   takes its mean of :math:`G` over each panel from :math:`GG` and :math:`GGG` at the
+   panel's ends (:func:`sim.pixel_integral.panel_mean`).
 
 Each row's lower pixel edge is the next row's upper one, so the footprints' y bounds are
 evaluated once per edge in a block of rows, not twice.
@@ -43,7 +44,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from sim.pixel_integral import _bracket, _poly_row, _row_gaps, _row_span, max_pieces
+from sim.pixel_integral import (STILL, _bracket, _mean_width, _poly_row, _row_gaps, _row_span,
+                                max_pieces, _panel_mean_d)
 
 __all__ = ["KNOT", "Buckets", "buckets", "view_forward"]
 
@@ -98,7 +100,7 @@ def _count(x, xbp, start, x0, inv):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, pre, pceT,
-            pccT, cxn, cyl, boff, bnodes, bands, tau, out, r_start, r_end, pmax, stats):
+            pccT, cxn, cyl, boff, bnodes, ends, bands, tau, out, r_start, r_end, pmax, stats):
     w = pccT.shape[1]
     N = cxn.shape[0]
     L = cyl.shape[0]
@@ -124,21 +126,20 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
     acc = np.empty(L)
     G = np.zeros(L)
     GG = np.zeros(L)
-    T = np.empty((L, nint + 3, 3))
+    GGG = np.zeros(L)
+    T = np.empty((L, nint + 3, 4))
     xs = np.empty(nint + 3)
-    KI = np.empty((N, w + 1), np.int64)
-    PA = np.empty((N, w + 1), np.int64)
+    PA = np.zeros((N, w + 1), np.int32)
     # The breakpoints between −∞ and +∞: piece p spans [xlim[p + 1], xlim[p + 2]).
     xlim = np.empty(nint + 4)
     xlim[0] = -np.inf
     xlim[1:nint + 2] = xb
     xlim[nint + 2:] = np.inf
     located = False
-    nmax = 1
-    for l in range(L):
-        nmax = max(nmax, boff[l + 1] - boff[l])
-    GN = np.empty((nmax, w + 1))
-    mG = np.empty((nmax, w + 1))
+    mG = np.empty(w + 1)
+    dGG = np.empty(w + 1)
+    GG1 = np.empty(w + 1)
+    dG3 = np.empty(w + 1)
     accv = np.empty(w)
     bounds = np.empty(pmax + 1)
     pmr = np.zeros(pmax, np.int64)
@@ -228,12 +229,13 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
         for l in range(L):
             xf_max = max(xf_max, xc_first[l])
             xl_min = min(xl_min, xc_last[l])
-        # Stage 1: every band's g on every piece, and its running G and GG, written straight
-        # into the band-major table that stage 2 reads (T[l, i − lo + 1] = g, G, GG at piece
-        # i's start).
+        # Stage 1: every band's g on every piece, and its running G, GG and GGG, written
+        # straight into the band-major table that stage 2 reads (T[l, i − lo + 1] = g, G, GG,
+        # GGG at piece i's start).
         for l in range(L):
             G[l] = 0.0
             GG[l] = 0.0
+            GGG[l] = 0.0
         for i in range(lo, hi + 1):
             for l in range(L):
                 acc[l] = 0.0
@@ -272,23 +274,25 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
             for l in range(L):
                 Gl = G[l]
                 GGl = GG[l]
+                GGGl = GGG[l]
                 T[l, k, 0] = acc[l]
                 T[l, k, 1] = Gl
                 T[l, k, 2] = GGl
+                T[l, k, 3] = GGGl
+                GGG[l] = GGGl + Lp * (GGl + Lp * (0.5 * Gl + Lp * acc[l] / 6.0))
                 GG[l] = GGl + Gl * Lp + 0.5 * acc[l] * Lp * Lp
                 G[l] = Gl + acc[l] * Lp
-        # Every edge located once per node: PA = its piece (−1 before the first), KI = that
-        # clamped to [lo − 1, hi + 1], less lo − 1 (an index into T).  An edge moves by a
-        # small fraction of a piece from one row to the next, so after the block's first
-        # row (the bucket table) each edge's piece is found by stepping from where it was
-        # in the row above: almost always no step, a branch that predicts well.
+        # Every edge located at the panels' ends: PA = its piece (−1 before the first).  An
+        # edge moves by a small fraction of a piece from one row to the next, so after the
+        # block's first row (the bucket table) each edge's piece is found by stepping from
+        # where it was in the row above: almost always no step, a branch that predicts well.
         if not located:
-            for j in range(N):
+            for j in ends:
                 for e in range(w + 1):
                     PA[j, e] = _count(X[j, e], xbp, start, x0, inv) - 1
             located = True
         else:
-            for j in range(N):
+            for j in ends:
                 for e in range(w + 1):
                     x = X[j, e]
                     p = PA[j, e]
@@ -297,68 +301,69 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
                     while xlim[p + 1] > x:
                         p -= 1
                     PA[j, e] = p
-        for j in range(N):
-            for e in range(w + 1):
-                KI[j, e] = min(max(PA[j, e], lo - 1), hi + 1) - lo + 1
-        # The table's ends, by that index: row 0 before the row's pieces (all 0), the last
-        # past them (G and GG carried on, g = 0), so every edge evaluates alike.
+        # The table's ends: row 0 before the row's pieces (all 0), the last past them (the
+        # integrals carried on, g = 0), so that every edge, its piece clamped to
+        # [lo − 1, hi + 1] (less lo − 1: an index into T), evaluates alike.
         nb_ = hi - lo + 2
         for l in range(L):
             T[l, 0, 0] = 0.0
             T[l, 0, 1] = 0.0
             T[l, 0, 2] = 0.0
+            T[l, 0, 3] = 0.0
             T[l, nb_, 0] = 0.0
             T[l, nb_, 1] = G[l]
             T[l, nb_, 2] = GG[l]
+            T[l, nb_, 3] = GGG[l]
         xs[0] = 0.0
         for i in range(1, nb_ + 1):
             xs[i] = xb[lo + i - 1]
-        # Stage 2, band by band: GG at every edge and node, its mean G over each segment, the
-        # pixels' sums.
+        # Stage 2, band by band and panel by panel: GG and GGG at every edge at the panel's
+        # ends, its mean G over the panel, the pixels' sums.
         for l in range(L):
             b0 = boff[l]
             n = boff[l + 1] - b0
-            nseg = max(n - 1, 1)
-            for jj in range(n):
-                j = bnodes[b0 + jj]
-                for e in range(w + 1):
-                    p = KI[j, e]
-                    d = X[j, e] - xs[p]
-                    GN[jj, e] = T[l, p, 2] + d * (T[l, p, 1] + 0.5 * d * T[l, p, 0])
-            if n == 1:
-                # A monochromatic band: G at the edge itself.
-                j = bnodes[b0]
-                for e in range(w + 1):
-                    p = KI[j, e]
-                    mG[0, e] = T[l, p, 1] + (X[j, e] - xs[p]) * T[l, p, 0]
-            else:
-                for s in range(nseg):
-                    js = bnodes[b0 + s]
-                    jt = bnodes[b0 + s + 1]
-                    bad = False
-                    for e in range(w + 1):
-                        dx = X[jt, e] - X[js, e]
-                        mG[s, e] = (GN[s + 1, e] - GN[s, e]) / dx
-                        bad |= not abs(dx) > 1e-9
-                    if bad:
-                        # Coinciding nodes: G at the edge.
-                        for e in range(w + 1):
-                            if not abs(X[jt, e] - X[js, e]) > 1e-9:
-                                xm = 0.5 * (X[js, e] + X[jt, e])
-                                p = _count(xm, xbp, start, x0, inv) - 1
-                                p = min(max(p, lo - 1), hi + 1) - lo + 1
-                                mG[s, e] = T[l, p, 1] + (xm - xs[p]) * T[l, p, 0]
+            npan = max((n - 1) // 2, 1)
             for c in range(w):
                 accv[c] = 0.0
-            for s in range(nseg):
-                js = bnodes[b0 + s]
-                jt = bnodes[b0 + min(s + 1, n - 1)]
+            for s in range(npan):
+                j0 = bnodes[b0 + 2 * s]
+                jm = bnodes[b0 + min(2 * s + 1, n - 1)]
+                j1 = bnodes[b0 + min(2 * s + 2, n - 1)]
+                # The gathers from the table (in a loop of their own: the divisions after
+                # them vectorise), then each edge's mean over the panel.
+                still = False
+                for e in range(w + 1):
+                    xa = X[j0, e]
+                    xe = X[j1, e]
+                    pa = min(max(PA[j0, e], lo - 1), hi + 1) - lo + 1
+                    pe = min(max(PA[j1, e], lo - 1), hi + 1) - lo + 1
+                    da = xa - xs[pa]
+                    de = xe - xs[pe]
+                    GGa = T[l, pa, 2] + da * (T[l, pa, 1] + 0.5 * da * T[l, pa, 0])
+                    GGe = T[l, pe, 2] + de * (T[l, pe, 1] + 0.5 * de * T[l, pe, 0])
+                    G3a = T[l, pa, 3] + da * (T[l, pa, 2] + da * (0.5 * T[l, pa, 1]
+                                                                  + da * T[l, pa, 0] / 6.0))
+                    G3e = T[l, pe, 3] + de * (T[l, pe, 2] + de * (0.5 * T[l, pe, 1]
+                                                                  + de * T[l, pe, 0] / 6.0))
+                    dGG[e] = GGe - GGa
+                    GG1[e] = GGe
+                    dG3[e] = G3e - G3a
+                    still |= not abs(xe - xa) > STILL
+                for e in range(w + 1):
+                    mG[e] = _panel_mean_d(X[j0, e], X[jm, e], X[j1, e], dGG[e], GG1[e], dG3[e])
+                if still:
+                    # An edge that stands still (a monochromatic band's): G at the edge.
+                    for e in range(w + 1):
+                        if not abs(X[j1, e] - X[j0, e]) > STILL:
+                            xm = 0.5 * (X[j0, e] + X[j1, e])
+                            p = _count(xm, xbp, start, x0, inv) - 1
+                            p = min(max(p, lo - 1), hi + 1) - lo + 1
+                            mG[e] = T[l, p, 1] + (xm - xs[p]) * T[l, p, 0]
                 for c in range(w):
-                    wid = 0.5 * ((X[js, c + 1] - X[js, c]) + (X[jt, c + 1] - X[jt, c]))
-                    accv[c] += (mG[s, c + 1] - mG[s, c]) / wid
+                    accv[c] += (mG[c + 1] - mG[c]) / _mean_width(X, j0, jm, j1, c)
             bl = bands[l]
             for c in range(w):
-                out[l, r, c] = tau[bl, r, c] * accv[c] / nseg
+                out[l, r, c] = tau[bl, r, c] * accv[c] / npan
 
 
 def view_forward(f, code, view, relay, part, bucket: Buckets, geom, cxn, cyl, band_nodes,
@@ -383,7 +388,8 @@ def view_forward(f, code, view, relay, part, bucket: Buckets, geom, cxn, cyl, ba
     cxn : (N, D, D)
         The mask-x polynomial at the nodes the bands use.
     cyl : (La, D, D)
-        Each band's mask-y polynomial averaged over its nodes.
+        Each band's mask-y polynomial averaged over its nodes
+        (:func:`sim.pixel_integral.node_weights`).
     band_nodes : list of int arrays
         Each band's nodes, as indices into ``cxn``.
     bands : (La,) int
@@ -400,12 +406,14 @@ def view_forward(f, code, view, relay, part, bucket: Buckets, geom, cxn, cyl, ba
     r0, r1 = (0, geom.h) if rows is None else (int(rows[0]), int(rows[1]))
     boff = np.concatenate([[0], np.cumsum([len(b) for b in band_nodes])]).astype(np.int64)
     bnodes = np.concatenate([np.asarray(b, np.int64) for b in band_nodes])
+    # The nodes where edges are located: every panel's ends (a band's nodes at even places).
+    ends = np.unique(np.concatenate([np.asarray(b, np.int64)[::2] for b in band_nodes]))
     stats = np.zeros(2, np.int64)
     pmax = max_pieces(relay, f.shape[0]) + 16
     _kernel(f, code, int(view), np.asarray(relay, np.float64), f.shape[0], xb, mcol, tcol,
             bucket.xbp, bucket.start, bucket.x0, bucket.inv, geom.prc, geom.pre, geom.pceT,
             geom.pccT, np.ascontiguousarray(cxn, np.float64),
-            np.ascontiguousarray(cyl, np.float64), boff, bnodes,
+            np.ascontiguousarray(cyl, np.float64), boff, bnodes, ends,
             np.asarray(bands, np.int64), tau, out, r0, r1, pmax, stats)
     if stats[1]:
         raise RuntimeError(f"{int(stats[1])} rows have more y gaps than the {pmax} expected")

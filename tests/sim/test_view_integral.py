@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from sim import pixel_integral as pi
 from sim import view_integral as vi
 
 #: Agreement with :func:`sim.pixel_integral.band_forward`, as a fraction of the view's peak:
@@ -73,7 +74,8 @@ def test_a_subset_of_bands_and_blocks_of_rows(small_transport):
     mask = tr.maps.mask[k]
     args = (f, tr.code, tr.views[k], tr.maps.relay[k], tr.partition(k, f.shape[1]),
             tr.buckets(k, f.shape[1]), geom, mask[:, 0],
-            np.stack([mask[b, 1].mean(axis=0) for b in tr.band_nodes]), tr.band_nodes, bands,
+            np.stack([pi.node_weights(len(b)) @ mask[b, 1].reshape(len(b), -1)
+                      for b in tr.band_nodes]).reshape(-1, *mask.shape[-2:]), tr.band_nodes, bands,
             tr.throughput(k))
     whole = view_forward(*args, np.full((len(bands), geom.h, geom.w), np.nan, np.float32))
     # Blocks of one row locate every edge by the bucket table; longer blocks step from the row
