@@ -44,7 +44,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from sim.pixel_integral import (STILL, _bracket, _mean_width, _poly_row, _row_gaps, _row_span,
+from sim.pixel_integral import (STILL, _mean_width, _poly_row, _row_gaps, _row_span,
                                 max_pieces, _panel_mean_d)
 
 __all__ = ["KNOT", "Buckets", "buckets", "view_forward"]
@@ -112,12 +112,13 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
     YE0 = np.empty((L, w))
     YE1 = np.empty((L, w))
     XC = np.empty(w)
-    IXC = np.zeros(w)
     nk = int((xb[nint] - xb[0]) / KNOT) + 3
     yk0 = np.empty((nk, L))
     yk1 = np.empty((nk, L))
     gk_lo = np.zeros(nk, np.int64)
     gk_hi = np.zeros(nk, np.int64)
+    kmin = np.empty(nk)
+    kmax = np.empty(nk)
     xc_first = np.empty(L)
     xc_last = np.empty(L)
     y0 = np.empty(L)
@@ -183,39 +184,61 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
         nq = min(int((xb[hi + 1] - xk) / KNOT) + 2, nk)
         for l in range(L):
             n = boff[l + 1] - boff[l]
-            jm0 = bnodes[boff[l] + (n - 1) // 2]
-            jm1 = bnodes[boff[l] + n // 2]
+            jm = bnodes[boff[l] + n // 2]          # the band's middle node (n is odd)
             for c in range(w):
-                XC[c] = 0.25 * (X[jm0, c] + X[jm0, c + 1] + X[jm1, c] + X[jm1, c + 1])
-            for c in range(w - 1):
-                IXC[c] = 1.0 / (XC[c + 1] - XC[c])
+                XC[c] = 0.5 * (X[jm, c] + X[jm, c + 1])
             # Knots carry the line through the end pixels' centres beyond them (not clamped),
             # so that interpolating between knots keeps it; the clamp to the end pixels'
-            # bounds is applied piece by piece, where the per-band kernel applies it.
+            # bounds is applied piece by piece, where the per-band kernel applies it.  A knot's
+            # bracket is walked from the last (knots are ~3 px apart) and its fraction taken
+            # with one division a knot, not one a pixel.
             c = 0
             for q in range(qa, nq):
                 xq = xk + q * KNOT
-                c, t = _bracket(xq, XC, IXC, c)
+                while c < w - 2 and XC[c + 1] <= xq:
+                    c += 1
+                while c > 0 and XC[c] > xq:
+                    c -= 1
                 c1 = min(c + 1, w - 1)
-                if w > 1:
-                    t = (xq - XC[c]) * IXC[c]
+                t = (xq - XC[c]) / (XC[c1] - XC[c]) if c1 > c else 0.0
                 yk0[q, l] = Y0[l, c] + t * (Y0[l, c1] - Y0[l, c])
                 yk1[q, l] = Y1[l, c] + t * (Y1[l, c1] - Y1[l, c])
             xc_first[l] = XC[0]
             xc_last[l] = XC[w - 1]
-        for q in range(qa, nq - 1):
+        xf_max = -np.inf
+        xl_min = np.inf
+        e0lo = np.inf
+        e0hi = -np.inf
+        e1lo = np.inf
+        e1hi = -np.inf
+        for l in range(L):
+            xf_max = max(xf_max, xc_first[l])
+            xl_min = min(xl_min, xc_last[l])
+            e0lo = min(e0lo, Y0[l, 0])
+            e0hi = max(e0hi, Y1[l, 0])
+            e1lo = min(e1lo, Y0[l, w - 1])
+            e1hi = max(e1hi, Y1[l, w - 1])
+        # Each knot's y extremes over the bands, then the gaps met between two knots.  Near
+        # the row's ends every band's end-pixel bounds are included, not only those of the
+        # bands whose end lies there: a gap too many adds zeros, not a different sum.
+        for q in range(qa, nq):
             a = np.inf
             b = -np.inf
-            xa = xk + q * KNOT
             for l in range(L):
-                a = min(a, yk0[q, l], yk0[q + 1, l])
-                b = max(b, yk1[q, l], yk1[q + 1, l])
-                if xa <= xc_first[l]:
-                    a = min(a, Y0[l, 0])
-                    b = max(b, Y1[l, 0])
-                if xa + KNOT >= xc_last[l]:
-                    a = min(a, Y0[l, w - 1])
-                    b = max(b, Y1[l, w - 1])
+                a = min(a, yk0[q, l])
+                b = max(b, yk1[q, l])
+            kmin[q] = a
+            kmax[q] = b
+        for q in range(qa, nq - 1):
+            xa = xk + q * KNOT
+            a = min(kmin[q], kmin[q + 1])
+            b = max(kmax[q], kmax[q + 1])
+            if xa <= xf_max:
+                a = min(a, e0lo)
+                b = max(b, e0hi)
+            if xa + KNOT >= xl_min:
+                a = min(a, e1lo)
+                b = max(b, e1hi)
             first = ng
             last = -1
             for p in range(ng):
@@ -224,11 +247,6 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
                     last = p
             gk_lo[q] = first
             gk_hi[q] = last + 1
-        xf_max = -np.inf
-        xl_min = np.inf
-        for l in range(L):
-            xf_max = max(xf_max, xc_first[l])
-            xl_min = min(xl_min, xc_last[l])
         # Stage 1: every band's g on every piece, and its running G, GG and GGG, written
         # straight into the band-major table that stage 2 reads (T[l, i − lo + 1] = g, G, GG,
         # GGG at piece i's start).
