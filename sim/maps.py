@@ -38,8 +38,8 @@ import numpy as np
 
 from recon.errors import InputError
 
-__all__ = ["OpticalMaps", "band_nodes", "panel_path_error", "trace_maps", "legendre_values", "evaluate",
-           "mask_coordinates", "diffuser_coordinates", "N_EXIT"]
+__all__ = ["OpticalMaps", "band_nodes", "panel_path_error", "trace_maps", "legendre_values",
+           "evaluate", "mask_coordinates", "diffuser_coordinates", "N_EXIT"]
 
 #: Quantities of the exit-plane map, in order: b_x, b_y, A[0,0], A[1,0], A[0,1], A[1,1] (mm; the
 #: columns of A are the exit-plane steps of the aperture disc's unit vectors).

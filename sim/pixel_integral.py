@@ -13,8 +13,8 @@ cells of view :math:`k`'s code region (0/1), :math:`f_l` the scene's band (piece
 on texels) and :math:`\tau_l` the band's throughput at the pixel (vignetting and losses,
 :func:`throughput_image`).  Within a pixel the map :math:`m` is affine and axis-aligned (its
 shear and rotation across one pixel are below 10⁻³ px), so the footprint at one wavelength is a
-rectangle :math:`[a, b] \times [y_0, y_1]` in mask coordinates, and as λ runs through a segment
-between two wavelength nodes its x-edges move linearly.  The integral then separates:
+rectangle :math:`[a, b] \times [y_0, y_1]` in mask coordinates, and as λ runs through the band
+its x-edges move along the prism's smooth dispersion curve.  The integral then separates:
 
 1. *Rows* (stage 1).  Along the footprint's height, :math:`g(x) = \frac{1}{y_1 - y_0}
    \int_{y_0}^{y_1} M_k f\, dy` is piecewise constant on the *partition* of the mask's x axis by
@@ -334,9 +334,10 @@ class RowGeometry:
     """What the kernels need of one view and one band, as plain arrays.
 
     ``cx`` (n, D, D): the mask-x polynomial at each of the band's nodes; ``cy`` (D, D): the
-    mask-y polynomial averaged over them (:func:`node_weights`); ``pre``/``prc`` (h+1, D)/(h, D): row polynomials at
-    the pixel rows' edges and centres; ``pce``/``pcc`` (w+1, D)/(w, D): column polynomials at
-    the pixel columns' edges and centres (``pceT``/``pccT``: the same, transposed).
+    mask-y polynomial averaged over them (:func:`node_weights`); ``pre``/``prc`` (h+1, D)/(h, D):
+    row polynomials at the pixel rows' edges and centres; ``pce``/``pcc`` (w+1, D)/(w, D):
+    column polynomials at the pixel columns' edges and centres (``pceT``/``pccT``: the same,
+    transposed).
     """
 
     def __init__(self, maps, k: int, nodes):

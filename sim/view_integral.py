@@ -22,13 +22,13 @@ computes those once per row and carries all bands along (the same maths as
    :math:`G`, :math:`GG`, :math:`GGG` at the piece's start go straight into a band-major
    table.
 2. *Edges* (stage 2).  Every pixel edge is located among the pieces at every panel's ends
-   (a node at a band's end serves both bands; the panels' middles only shape the path): in a block's first row by a bucket table
-   (buckets narrower than half the texel pitch and a quarter mask unit hold at most three
-   breakpoints, so three comparisons added replace a walk whose branches mispredict), in the
-   next rows by stepping from the piece it was in a row above (an edge moves by a small
-   fraction of a piece from row to row: the step is almost always none).  Each band then
-   takes its mean of :math:`G` over each panel from :math:`GG` and :math:`GGG` at the
-   panel's ends (:func:`sim.pixel_integral.panel_mean`).
+   (a node at a band's end serves both bands; the panels' middles only shape the path): in a
+   block's first row by a bucket table (buckets narrower than half the texel pitch and a
+   quarter mask unit hold at most three breakpoints, so three comparisons added replace a
+   walk whose branches mispredict), in the next rows by stepping from the piece it was in a
+   row above (an edge moves by a small fraction of a piece from row to row: the step is
+   almost always none).  Each band then takes its mean of :math:`G` over each panel from
+   :math:`GG` and :math:`GGG` at the panel's ends (:func:`sim.pixel_integral.panel_mean`).
 
 Each row's lower pixel edge is the next row's upper one, so the footprints' y bounds are
 evaluated once per edge in a block of rows, not twice.
@@ -36,7 +36,7 @@ evaluated once per edge in a block of rows, not twice.
 The result equals :func:`~sim.pixel_integral.band_forward` band by band to a few 10⁻⁵ of the
 view's peak (the footprints' y bounds are interpolated where that kernel interpolates the
 shares; both are exact to the maps' 10⁻⁴ px; ``tests/sim/test_view_integral.py``) and, on
-``paper``, costs 0.4 of what its 26 bands cost there (``tools/bench_transport.py``).
+``paper``, costs about half of what its 26 bands cost there (``tools/bench_transport.py``).
 """
 
 from __future__ import annotations
