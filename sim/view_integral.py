@@ -44,8 +44,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from sim.pixel_integral import (STILL, _mean_width, _poly_row, _row_gaps, _row_span,
-                                max_pieces, _panel_mean_d)
+from sim.pixel_integral import (STILL, _mean_width, _panel_mean_d, _poly_row, _row_gaps,
+                                _row_span, max_pieces)
 
 __all__ = ["KNOT", "Buckets", "buckets", "view_forward"]
 
