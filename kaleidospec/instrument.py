@@ -298,7 +298,7 @@ def _view_answer(tr, cal, i, ex, ey):
     """Where calibration view index ``i`` puts grid edge points ``(ex, ey)`` on the scene,
     averaged over the bands: (x, y) in units of the scene's side (:func:`grid_on_scene`)."""
     from sim.maps import legendre_values
-    from sim.pixel_integral import node_weights
+    from sim.pixel_integral import band_mean
 
     maps, k = tr.maps, tr.views.index(int(cal.view_ids[i]))
     # Grid and view coordinates put pixel centres at integers, edges at half-integers.  A view's
@@ -317,10 +317,8 @@ def _view_answer(tr, cal, i, ex, ey):
     x = np.zeros(qx.size)
     y = np.zeros(qx.size)
     for l in range(cal.n_bands):
-        nodes = list(tr.band_nodes[l])
-        wts = node_weights(len(nodes))
-        cx = np.tensordot(wts, maps.mask[k, nodes, 0], 1)
-        cy = np.tensordot(wts, maps.mask[k, nodes, 1], 1)
+        cx = band_mean(maps.mask[k, :, 0], tr.band_nodes[l])
+        cy = band_mean(maps.mask[k, :, 1], tr.band_nodes[l])
         pc = legendre_values(((box_x + qx + float(cal.offsets[i, l]) + 0.5 - cc) / sc).ravel(),
                              maps.degree)
         x += ax + bx * np.einsum("na,ab,nb->n", pr, cx, pc)

@@ -78,14 +78,14 @@ def panel_path_error(phi, t) -> float:
     :math:`\varphi(t)` (``phi`` at the panel parameters ``t`` in [0, 1], which include 0, ½
     and 1): the largest :math:`|t_q(\varphi) - t|\,|D|` of the path whose :math:`t_q` is
     quadratic in the position through the panel's three nodes (:mod:`sim.pixel_integral`)."""
+    from sim.pixel_integral import _kappa
+
     phi, t = np.asarray(phi, np.float64), np.asarray(t, np.float64)
     x0, xm, x1 = (float(np.interp(v, t, phi)) for v in (0.0, 0.5, 1.0))
     D = x1 - x0
     if abs(D) < 1e-12:
         return float(np.abs(phi - x0).max())
-    a = xm - x0
-    kappa = (0.5 * D - a) / (D * a * (a - D))
-    tq = (phi - x0) / D + kappa * (phi - x0) * (phi - x1)
+    tq = (phi - x0) / D + _kappa(x0, xm, x1) * (phi - x0) * (phi - x1)
     return float(np.abs(tq - t).max() * abs(D))
 
 
@@ -109,13 +109,13 @@ def band_nodes(design, intervals, tolerance_px: float = 0.003):
     """
     iv = np.asarray(intervals, np.float64).reshape(-1, 2)
     per_band = []
+    t = np.linspace(0.0, 1.0, 101)
     for lo, hi in iv:
         if hi - lo < 1e-9:
             per_band.append(np.array([lo]))
             continue
         for n in range(1, 17):
             edges = np.linspace(lo, hi, n + 1)
-            t = np.linspace(0.0, 1.0, 101)
             if max(panel_path_error(design.dispersion_px_at(a + t * (b - a)), t)
                    for a, b in zip(edges[:-1], edges[1:])) <= tolerance_px:
                 break

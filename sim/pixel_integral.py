@@ -60,7 +60,8 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["disc_fraction", "throughput_images", "node_weights", "partition", "panel_mean",
+__all__ = ["disc_fraction", "throughput_images", "node_weights", "band_mean", "partition",
+           "panel_mean",
            "band_forward", "band_adjoint", "RowGeometry", "COARSE_PX", "STILL", "STRAIGHT"]
 
 
@@ -237,6 +238,13 @@ def node_weights(n: int) -> np.ndarray:
     return w / w.sum()
 
 
+def band_mean(values, nodes) -> np.ndarray:
+    """The band's mean of a quantity traced at its ``nodes`` (``values`` indexed by node along
+    its first axis, e.g. a map's coefficients), by :func:`node_weights`."""
+    nodes = [int(j) for j in nodes]
+    return np.tensordot(node_weights(len(nodes)), np.asarray(values)[nodes], 1)
+
+
 def throughput_images(maps, k: int, band_nodes) -> np.ndarray:
     r"""Every band's throughput τ at the pixel centres of view ``k``: (L, h, w) float32.
 
@@ -355,8 +363,7 @@ class RowGeometry:
         self.pceT = np.ascontiguousarray(self.pce.T)
         self.pccT = np.ascontiguousarray(self.pcc.T)
         self.cx = np.ascontiguousarray(maps.mask[k, list(nodes), 0])
-        self.cy = np.ascontiguousarray(np.tensordot(node_weights(len(nodes)),
-                                                    maps.mask[k, list(nodes), 1], 1))
+        self.cy = np.ascontiguousarray(band_mean(maps.mask[k, :, 1], nodes))
 
     def x_range(self, margin: float = 2.0):
         """The mask-x span of the view's pixel edges at the band's nodes, widened by ``margin``."""
@@ -556,6 +563,13 @@ STRAIGHT = 1e-3
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _panel(s, n):
+    """Panel ``s`` of a band with ``n`` nodes: the places of its first, middle and last node
+    among them (all 0 for a monochromatic band's one node)."""
+    return 2 * s, min(2 * s + 1, n - 1), min(2 * s + 2, n - 1)
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _kappa(x0, xm, x1):
     r""":math:`\kappa` of the path through :math:`(x_0, 0), (x_m, \frac12), (x_1, 1)` whose
     :math:`t` is quadratic in :math:`x`: :math:`t = (x - x_0)/D + \kappa (x - x_0)(x - x_1)`."""
@@ -674,7 +688,7 @@ def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pceT, pccT, cx
                     ptr = max(k, lo)
                     GN[j, e], GN3[j, e] = _ggg(X[j, e], k, xb, g, G, GG, GGG, lo, hi)
             for s in range(npan):
-                j0, jm, j1 = 2 * s, min(2 * s + 1, n - 1), min(2 * s + 2, n - 1)
+                j0, jm, j1 = _panel(s, n)
                 ptr = lo
                 for e in range(w + 1):
                     x0, x1 = X[j0, e], X[j1, e]
@@ -690,7 +704,7 @@ def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pceT, pccT, cx
             for c in range(w):
                 accv[c] = 0.0
             for s in range(npan):
-                j0, jm, j1 = 2 * s, min(2 * s + 1, n - 1), min(2 * s + 2, n - 1)
+                j0, jm, j1 = _panel(s, n)
                 for c in range(w):
                     wid = _mean_width(X, j0, jm, j1, c)
                     accv[c] += (mG[s, c + 1] - mG[s, c]) / wid
@@ -707,7 +721,7 @@ def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pceT, pccT, cx
                 for e in range(w + 1):
                     amG[s, e] = 0.0
             for s in range(npan):
-                j0, jm, j1 = 2 * s, min(2 * s + 1, n - 1), min(2 * s + 2, n - 1)
+                j0, jm, j1 = _panel(s, n)
                 for c in range(w):
                     eb = out[r, c] * tau[r, c] / npan
                     wid = _mean_width(X, j0, jm, j1, c)
@@ -723,7 +737,7 @@ def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pceT, pccT, cx
                     a = amG[s, e]
                     if a == 0.0:
                         continue
-                    j0, jm, j1 = 2 * s, min(2 * s + 1, n - 1), min(2 * s + 2, n - 1)
+                    j0, jm, j1 = _panel(s, n)
                     x0, x1 = X[j0, e], X[j1, e]
                     if n > 1 and abs(x1 - x0) > STILL:
                         # panel_mean = (1/D + κD) GG₁ + (κD − 1/D) GG₀ − 2κ (GGG₁ − GGG₀).

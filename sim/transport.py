@@ -143,7 +143,7 @@ class Transport:
         scene's bands ``f`` (H, W, La), band-last: all bands in one pass over the rows
         (:mod:`sim.view_integral`), blocks of rows on a thread per core.  The same as
         :meth:`view_band` band by band, to a few 10⁻⁵ of the peak."""
-        from sim.pixel_integral import node_weights
+        from sim.pixel_integral import band_mean
         from sim.view_integral import view_forward
 
         bands = list(range(self.n_bands)) if bands is None else [self._check_band(l)
@@ -157,8 +157,7 @@ class Transport:
         where = {j: i for i, j in enumerate(used)}
         mask = self.maps.mask[k]
         cxn = mask[used, 0]
-        cyl = np.stack([np.tensordot(node_weights(len(self.band_nodes[l])),
-                                     mask[self.band_nodes[l], 1], 1) for l in bands])
+        cyl = np.stack([band_mean(mask[:, 1], self.band_nodes[l]) for l in bands])
         nodes = [np.array([where[int(j)] for j in self.band_nodes[l]], np.int64) for l in bands]
         geom = self.geometry(k, bands[0])
         if out is None:

@@ -44,8 +44,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from sim.pixel_integral import (STILL, _mean_width, _panel_mean_d, _poly_row, _row_gaps,
-                                _row_span, max_pieces)
+from sim.pixel_integral import (STILL, _mean_width, _panel, _panel_mean_d, _poly_row,
+                                _row_gaps, _row_span, max_pieces)
 
 __all__ = ["KNOT", "Buckets", "buckets", "view_forward"]
 
@@ -344,9 +344,8 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
             for c in range(w):
                 accv[c] = 0.0
             for s in range(npan):
-                j0 = bnodes[b0 + 2 * s]
-                jm = bnodes[b0 + min(2 * s + 1, n - 1)]
-                j1 = bnodes[b0 + min(2 * s + 2, n - 1)]
+                i0, im, i1 = _panel(s, n)
+                j0, jm, j1 = bnodes[b0 + i0], bnodes[b0 + im], bnodes[b0 + i1]
                 # The gathers from the table (in a loop of their own: the divisions after
                 # them vectorise), then each edge's mean over the panel.
                 still = False

@@ -136,7 +136,7 @@ def test_step_mean_is_the_mean_over_the_path():
         else:
             k = pi._kappa(a0, am, a1)
             # t = (a − a0)/D + k (a − a0)(a − a1): the root in [a0, a1].
-            A, B, C = k, 1.0 / D - k * (a0 + a1) + 0.0, -a0 / D + k * a0 * a1 - t
+            A, B, C = k, 1.0 / D - k * (a0 + a1), -a0 / D + k * a0 * a1 - t
             a = (-B + np.sign(D) * np.sqrt(B * B - 4 * A * C)) / (2 * A) if k else -C / B
         want = np.maximum(x[:, None] - a[None, :], 0.0).mean(axis=1)
         np.testing.assert_allclose(_step_mean(x, a0, am, a1), want, atol=1e-7)
