@@ -78,14 +78,16 @@ def panel_path_error(phi, t) -> float:
     :math:`\varphi(t)` (``phi`` at the panel parameters ``t`` in [0, 1], which include 0, ½
     and 1): the largest :math:`|t_q(\varphi) - t|\,|D|` of the path whose :math:`t_q` is
     quadratic in the position through the panel's three nodes (:mod:`sim.pixel_integral`)."""
-    from sim.pixel_integral import _kappa
-
     phi, t = np.asarray(phi, np.float64), np.asarray(t, np.float64)
     x0, xm, x1 = (float(np.interp(v, t, phi)) for v in (0.0, 0.5, 1.0))
     D = x1 - x0
     if abs(D) < 1e-12:
         return float(np.abs(phi - x0).max())
-    tq = (phi - x0) / D + _kappa(x0, xm, x1) * (phi - x0) * (phi - x1)
+    # sim.pixel_integral._kappa's formula, written here again: the kernels import this module
+    # (Legendre values), so this module may not import them.
+    a = xm - x0
+    kappa = (0.5 * D - a) / (D * a * (a - D))
+    tq = (phi - x0) / D + kappa * (phi - x0) * (phi - x1)
     return float(np.abs(tq - t).max() * abs(D))
 
 
