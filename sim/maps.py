@@ -83,7 +83,7 @@ def panel_path_error(phi, t) -> float:
     D = x1 - x0
     if abs(D) < 1e-12:
         return float(np.abs(phi - x0).max())
-    # sim.pixel_integral._kappa's formula, written here again: the kernels import this module
+    # sim.pixel_integral._panel_factors' κ, written here again: the kernels import this module
     # (Legendre values), so this module may not import them.
     a = xm - x0
     kappa = (0.5 * D - a) / (D * a * (a - D))

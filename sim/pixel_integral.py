@@ -570,12 +570,22 @@ def _panel(s, n):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _kappa(x0, xm, x1):
-    r""":math:`\kappa` of the path through :math:`(x_0, 0), (x_m, \frac12), (x_1, 1)` whose
-    :math:`t` is quadratic in :math:`x`: :math:`t = (x - x_0)/D + \kappa (x - x_0)(x - x_1)`."""
+def _panel_factors(x0, xm, x1):
+    r"""(:math:`1/D`, :math:`\kappa`) of the path through :math:`(x_0, 0), (x_m, \frac12),
+    (x_1, 1)` whose :math:`t` is quadratic in :math:`x`,
+    :math:`t = (x - x_0)/D + \kappa (x - x_0)(x - x_1)`, :math:`D = x_1 - x_0`:
+
+    .. math:: \kappa = \frac{D/2 - a}{D\, a\, (a - D)}, \quad a = x_m - x_0,
+
+    both from one reciprocal :math:`r = 1/(D a (a - D))` (:math:`1/D = a (a - D)\, r`), written
+    with selects so that a loop over edges stays vectorised: every band and edge takes one
+    division here, not two.  :math:`\kappa = 0` where :math:`|D| \le` :data:`STRAIGHT`."""
     D = x1 - x0
     a = xm - x0
-    return (0.5 * D - a) / (D * a * (a - D)) if abs(D) > STRAIGHT else 0.0
+    bent = abs(D) > STRAIGHT
+    q = a * (a - D)
+    r = 1.0 / (D * q if bent else D)
+    return (q * r if bent else r), ((0.5 * D - a) * r if bent else 0.0)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -595,8 +605,9 @@ def panel_mean(x0, xm, x1, GG0, GG1, GGG0, GGG1):
 @njit(cache=True, nogil=True, inline="always")
 def _panel_mean_d(x0, xm, x1, dGG, GG1, dGGG):
     """:func:`panel_mean` from the differences ΔGG, ΔGGG and GG₁."""
+    inv_d, kap = _panel_factors(x0, xm, x1)
     D = x1 - x0
-    return dGG / D + _kappa(x0, xm, x1) * (2.0 * (D * GG1 - dGGG) - D * dGG)
+    return dGG * inv_d + kap * (2.0 * (D * GG1 - dGGG) - D * dGG)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -606,6 +617,7 @@ def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pceT, pccT, cx
     w = pccT.shape[1]
     n = cx.shape[0]
     npan = max((n - 1) // 2, 1)
+    inv_n = 1.0 / npan
     nint = mcol.shape[0]
     ay, by = relay[2], relay[3]
     X = np.empty((n, w + 1))
@@ -709,7 +721,7 @@ def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pceT, pccT, cx
                     wid = _mean_width(X, j0, jm, j1, c)
                     accv[c] += (mG[s, c + 1] - mG[s, c]) / wid
             for c in range(w):
-                out[r, c] = tau[r, c] * accv[c] / npan
+                out[r, c] = tau[r, c] * accv[c] * inv_n
         else:
             for i in range(lo, hi + 1):
                 ag[i] = 0.0
@@ -723,7 +735,7 @@ def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pceT, pccT, cx
             for s in range(npan):
                 j0, jm, j1 = _panel(s, n)
                 for c in range(w):
-                    eb = out[r, c] * tau[r, c] / npan
+                    eb = out[r, c] * tau[r, c] * inv_n
                     wid = _mean_width(X, j0, jm, j1, c)
                     amG[s, c + 1] += eb / wid
                     amG[s, c] -= eb / wid
@@ -742,9 +754,9 @@ def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pceT, pccT, cx
                     if n > 1 and abs(x1 - x0) > STILL:
                         # panel_mean = (1/D + κD) GG₁ + (κD − 1/D) GG₀ − 2κ (GGG₁ − GGG₀).
                         D = x1 - x0
-                        kap = _kappa(x0, X[jm, e], x1)
-                        an[j1] += a * (1.0 / D + kap * D)
-                        an[j0] += a * (kap * D - 1.0 / D)
+                        inv_d, kap = _panel_factors(x0, X[jm, e], x1)
+                        an[j1] += a * (inv_d + kap * D)
+                        an[j0] += a * (kap * D - inv_d)
                         an3[j1] -= a * 2.0 * kap
                         an3[j0] += a * 2.0 * kap
                     else:

@@ -264,29 +264,38 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
                 u = (xm - xk) / KNOT
                 q = min(max(int(u), qa), nq - 2)
                 t = u - q
-                for l in range(L):
-                    y0[l] = yk0[q, l] + t * (yk0[q + 1, l] - yk0[q, l])
-                    y1[l] = yk1[q, l] + t * (yk1[q + 1, l] - yk1[q, l])
-                if xm <= xf_max or xm >= xl_min:
-                    # Beyond a band's end pixel centres its bounds are the end pixel's.
-                    for l in range(L):
-                        if xm <= xc_first[l]:
-                            y0[l] = Y0[l, 0]
-                            y1[l] = Y1[l, 0]
-                        if xm >= xc_last[l]:
-                            y0[l] = Y0[l, w - 1]
-                            y1[l] = Y1[l, w - 1]
-                for l in range(L):
-                    inv_h[l] = 1.0 / (y1[l] - y0[l]) if y1[l] > y0[l] else 0.0
+                # A piece whose footprint meets no cell open to this view adds nothing: its
+                # bands' bounds and heights are not needed (two pieces in five on `paper`).
+                lit = False
                 for p in range(gk_lo[q], gk_hi[q]):
                     mr = pmr[p]
-                    tr = ptr_[p]
-                    if mr >= 0 and tr >= 0 and code[mr, mc] == view:
-                        ba = bounds[p]
-                        bb = bounds[p + 1]
+                    if mr >= 0 and ptr_[p] >= 0 and code[mr, mc] == view:
+                        lit = True
+                        break
+                if lit:
+                    for l in range(L):
+                        y0[l] = yk0[q, l] + t * (yk0[q + 1, l] - yk0[q, l])
+                        y1[l] = yk1[q, l] + t * (yk1[q + 1, l] - yk1[q, l])
+                    if xm <= xf_max or xm >= xl_min:
+                        # Beyond a band's end pixel centres its bounds are the end pixel's.
                         for l in range(L):
-                            s = min(bb, y1[l]) - max(ba, y0[l])
-                            acc[l] += max(s, 0.0) * inv_h[l] * f[tr, tc, l]
+                            if xm <= xc_first[l]:
+                                y0[l] = Y0[l, 0]
+                                y1[l] = Y1[l, 0]
+                            if xm >= xc_last[l]:
+                                y0[l] = Y0[l, w - 1]
+                                y1[l] = Y1[l, w - 1]
+                    for l in range(L):
+                        inv_h[l] = 1.0 / (y1[l] - y0[l]) if y1[l] > y0[l] else 0.0
+                    for p in range(gk_lo[q], gk_hi[q]):
+                        mr = pmr[p]
+                        tr = ptr_[p]
+                        if mr >= 0 and tr >= 0 and code[mr, mc] == view:
+                            ba = bounds[p]
+                            bb = bounds[p + 1]
+                            for l in range(L):
+                                s = min(bb, y1[l]) - max(ba, y0[l])
+                                acc[l] += max(s, 0.0) * inv_h[l] * f[tr, tc, l]
             Lp = xb[i + 1] - xb[i]
             k = i - lo + 1
             for l in range(L):
@@ -379,8 +388,9 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
                 for c in range(w):
                     accv[c] += (mG[c + 1] - mG[c]) / _mean_width(X, j0, jm, j1, c)
             bl = bands[l]
+            inv_n = 1.0 / npan
             for c in range(w):
-                out[l, r, c] = tau[bl, r, c] * accv[c] / npan
+                out[l, r, c] = tau[bl, r, c] * accv[c] * inv_n
 
 
 def view_forward(f, code, view, relay, part, bucket: Buckets, geom, cxn, cyl, band_nodes,

@@ -55,12 +55,12 @@ def test_partition_holds_every_cell_and_texel_boundary():
 
 def _step_mean(x, a0, am, a1):
     """Mean over t ∈ [0, 1] of max(x − a(t), 0) for an edge on the pixel integral's path
-    through a0, am, a1 (t quadratic in a, by :func:`sim.pixel_integral._kappa`), in closed
+    through a0, am, a1 (t quadratic in a, by :func:`sim.pixel_integral._panel_factors`), in closed
     form: ∫ (x − a)₊ t'(a) da with t'(a) = α + β a."""
     D = a1 - a0
     if abs(D) <= pi.STILL:
         return np.maximum(x - 0.5 * (a0 + a1), 0.0)
-    kappa = pi._kappa(a0, am, a1)
+    kappa = pi._panel_factors(a0, am, a1)[1]
     alpha, beta = 1.0 / D - kappa * (a0 + a1), 2.0 * kappa
     lo, hi = min(a0, a1), max(a0, a1)
     u = np.clip(x, lo, hi)
@@ -134,12 +134,30 @@ def test_step_mean_is_the_mean_over_the_path():
         if abs(D) <= pi.STILL:
             a = np.full_like(t, a0)
         else:
-            k = pi._kappa(a0, am, a1)
+            k = pi._panel_factors(a0, am, a1)[1]
             # t = (a − a0)/D + k (a − a0)(a − a1): the root in [a0, a1].
             A, B, C = k, 1.0 / D - k * (a0 + a1), -a0 / D + k * a0 * a1 - t
             a = (-B + np.sign(D) * np.sqrt(B * B - 4 * A * C)) / (2 * A) if k else -C / B
         want = np.maximum(x[:, None] - a[None, :], 0.0).mean(axis=1)
         np.testing.assert_allclose(_step_mean(x, a0, am, a1), want, atol=1e-7)
+
+
+
+def test_panel_factors_match_their_formula():
+    """1/D and κ from one reciprocal equal the two divisions they replace (and κ = 0 on a
+    panel shorter than STRAIGHT, where 1/D is still the plain reciprocal)."""
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        x0 = rng.uniform(-50, 50)
+        D = rng.choice([-1.0, 1.0]) * 10 ** rng.uniform(-2.9, 1.0)
+        xm, x1 = x0 + D * rng.uniform(0.3, 0.7), x0 + D
+        D, a = x1 - x0, xm - x0          # as the kernel forms them
+        inv_d, kap = pi._panel_factors(x0, xm, x1)
+        assert inv_d == pytest.approx(1.0 / D, rel=1e-14)
+        assert kap == pytest.approx((0.5 * D - a) / (D * a * (a - D)), rel=1e-14)
+    for D in (5e-4, -9e-4):
+        inv_d, kap = pi._panel_factors(1.0, 1.0 + 0.4 * D, 1.0 + D)
+        assert kap == 0.0 and inv_d == 1.0 / ((1.0 + D) - 1.0)
 
 
 @pytest.mark.mitsuba
