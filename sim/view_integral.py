@@ -20,7 +20,8 @@ computes those once per row and carries all bands along (the same maths as
    pixel to pixel; beyond a band's end pixels, their bounds).  The inner loop runs over the
    bands, the scene being stored band-last; each band's :math:`g` and its running integrals
    :math:`G`, :math:`GG`, :math:`GGG` at the piece's start go straight into a band-major
-   table.
+   table.  A piece whose footprint meets no cell open to the view has :math:`g = 0` in every
+   band: it is only carried through the running integrals.
 2. *Edges* (stage 2).  Every pixel edge is located among the pieces at every panel's ends
    (a node at a band's end serves both bands; the panels' middles only shape the path): in a
    block's first row by a bucket table (buckets narrower than half the texel pitch and a
