@@ -61,8 +61,8 @@ import numpy as np
 from numba import njit
 
 __all__ = ["disc_fraction", "throughput_images", "node_weights", "band_mean", "partition",
-           "panel_mean",
-           "band_forward", "band_adjoint", "RowGeometry", "COARSE_PX", "STILL", "STRAIGHT"]
+           "panel_mean", "band_forward", "band_adjoint", "RowGeometry", "COARSE_PX", "STILL",
+           "STRAIGHT"]
 
 
 # ------------------------------------------------------------------------------ vignetting
@@ -563,6 +563,13 @@ STRAIGHT = 1e-3
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _open(code, view, mr, tr, mc):
+    """Whether the gap of mask row ``mr`` and texel row ``tr`` (−1: none) lets the scene
+    through mask column ``mc`` into ``view``: a cell of the view's code, over the scene."""
+    return mr >= 0 and tr >= 0 and code[mr, mc] == view
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _panel(s, n):
     """Panel ``s`` of a band with ``n`` nodes: the places of its first, middle and last node
     among them (all 0 for a monochromatic band's one node)."""
@@ -683,7 +690,7 @@ def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pceT, pccT, cx
                     for p in range(pa[c], pb[c]):
                         mr = pmr[p]
                         tr = ptr_[p]
-                        if mr >= 0 and tr >= 0 and code[mr, mc] == view:
+                        if _open(code, view, mr, tr, mc):
                             a = plen[c, p]
                             acc += (a + t * (plen[c + 1, p] - a)) * f[tr, tc]
                 g[i] = acc
@@ -796,7 +803,7 @@ def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pceT, pccT, cx
                     for p in range(pa[c], pb[c]):
                         mr = pmr[p]
                         tr = ptr_[p]
-                        if mr >= 0 and tr >= 0 and code[mr, mc] == view:
+                        if _open(code, view, mr, tr, mc):
                             a = plen[c, p]
                             fbar[tr, tc] += ai * (a + t * (plen[c + 1, p] - a))
 

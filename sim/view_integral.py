@@ -45,8 +45,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from sim.pixel_integral import (STILL, _mean_width, _panel, _panel_mean_d, _poly_row,
-                                _row_gaps, _row_span, max_pieces)
+from sim.pixel_integral import (STILL, _mean_width, _open, _panel, _panel_mean_d,
+                                _poly_row, _row_gaps, _row_span, max_pieces)
 
 __all__ = ["KNOT", "Buckets", "buckets", "view_forward"]
 
@@ -97,6 +97,14 @@ def _count(x, xbp, start, x0, inv):
     b = min(max(int((x - x0) * inv), 0), start.shape[0] - 1)
     p = start[b]
     return p + (xbp[p] <= x) + (xbp[p + 1] <= x) + (xbp[p + 2] <= x)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _table_ggg(T, l, p, d):
+    """(GG, GGG) of band ``l`` at ``d`` past the start of the table's row ``p`` (g, G, GG,
+    GGG there), as :func:`sim.pixel_integral._ggg` evaluates its own arrays."""
+    return (T[l, p, 2] + d * (T[l, p, 1] + 0.5 * d * T[l, p, 0]),
+            T[l, p, 3] + d * (T[l, p, 2] + d * (0.5 * T[l, p, 1] + d * T[l, p, 0] / 6.0)))
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -269,8 +277,7 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
                 # bands' bounds and heights are not needed (two pieces in five on `paper`).
                 lit = False
                 for p in range(gk_lo[q], gk_hi[q]):
-                    mr = pmr[p]
-                    if mr >= 0 and ptr_[p] >= 0 and code[mr, mc] == view:
+                    if _open(code, view, pmr[p], ptr_[p], mc):
                         lit = True
                         break
                 if lit:
@@ -291,7 +298,7 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
                     for p in range(gk_lo[q], gk_hi[q]):
                         mr = pmr[p]
                         tr = ptr_[p]
-                        if mr >= 0 and tr >= 0 and code[mr, mc] == view:
+                        if _open(code, view, mr, tr, mc):
                             ba = bounds[p]
                             bb = bounds[p + 1]
                             for l in range(L):
@@ -364,14 +371,8 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
                     xe = X[j1, e]
                     pa = min(max(PA[j0, e], lo - 1), hi + 1) - lo + 1
                     pe = min(max(PA[j1, e], lo - 1), hi + 1) - lo + 1
-                    da = xa - xs[pa]
-                    de = xe - xs[pe]
-                    GGa = T[l, pa, 2] + da * (T[l, pa, 1] + 0.5 * da * T[l, pa, 0])
-                    GGe = T[l, pe, 2] + de * (T[l, pe, 1] + 0.5 * de * T[l, pe, 0])
-                    G3a = T[l, pa, 3] + da * (T[l, pa, 2] + da * (0.5 * T[l, pa, 1]
-                                                                  + da * T[l, pa, 0] / 6.0))
-                    G3e = T[l, pe, 3] + de * (T[l, pe, 2] + de * (0.5 * T[l, pe, 1]
-                                                                  + de * T[l, pe, 0] / 6.0))
+                    GGa, G3a = _table_ggg(T, l, pa, xa - xs[pa])
+                    GGe, G3e = _table_ggg(T, l, pe, xe - xs[pe])
                     dGG[e] = GGe - GGa
                     GG1[e] = GGe
                     dG3[e] = G3e - G3a
