@@ -441,6 +441,14 @@ def _row_edges(r, prc, pre, pceT, pccT, cx, cy, X, Y0, Y1, XC):
             XC[c] = 0.25 * (X[jm - 1, c] + X[jm - 1, c + 1] + X[jm, c] + X[jm, c + 1])
 
 
+#: The kernels' fast-math: fused multiply-adds (one rounding where a product and a sum had two)
+#: and nothing else, so every sum keeps its order and NaN and infinity keep their meaning.
+CONTRACT = frozenset({"contract"})
+
+#: Boundaries of a row's gaps closer than this (texels, or mask units) are one line.
+SLIVER = 1e-7
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _row_gaps(ylo, yhi, ay, by, H, n_mask, pmr, ptr_, bounds):
     """Cut [ylo, yhi] at the mask-row and texel-row boundaries: each gap's mask row and texel
@@ -453,11 +461,21 @@ def _row_gaps(ylo, yhi, ay, by, H, n_mask, pmr, ptr_, bounds):
     while y < yhi and k < pmax:
         nb = math.floor(y) + 1.0
         t = (ay + by * y) * H
+        # The next texel boundary past y.  A gap that ended on a texel boundary puts y on it
+        # within round-off, either side: that boundary is behind, not next (else a 10⁻⁹ sliver
+        # gap would follow every texel row, each costing a gap's work for nothing).
         if by > 0.0:
-            yt = ((math.floor(t) + 1.0) / H - ay) / by
+            n = math.floor(t) + 1.0
+            if n - t < SLIVER:
+                n += 1.0
         else:
-            yt = ((math.ceil(t) - 1.0) / H - ay) / by
-        ye = min(nb, yt, yhi)
+            n = math.ceil(t) - 1.0
+            if t - n < SLIVER:
+                n -= 1.0
+        yt = (n / H - ay) / by
+        # A texel boundary within round-off of a mask boundary is the same line.
+        ye = max(nb, yt) if abs(nb - yt) < SLIVER else min(nb, yt)
+        ye = min(ye, yhi)
         if ye <= y:
             ye = min(y + 1e-9, yhi)
         ym = 0.5 * (y + ye)
@@ -617,7 +635,7 @@ def _panel_mean_d(x0, xm, x1, dGG, GG1, dGGG):
     return dGG * inv_d + kap * (2.0 * (D * GG1 - dGGG) - D * dGG)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=set(CONTRACT))
 def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pceT, pccT, cx, cy, tau,
             out, fbar, adjoint, pmax):
     h = prc.shape[0]

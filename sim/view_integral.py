@@ -45,7 +45,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from sim.pixel_integral import (STILL, _mean_width, _open, _panel, _panel_mean_d,
+from sim.pixel_integral import (CONTRACT, STILL, _mean_width, _open, _panel, _panel_mean_d,
                                 _poly_row, _row_gaps, _row_span, max_pieces)
 
 __all__ = ["KNOT", "Buckets", "buckets", "view_forward"]
@@ -107,7 +107,7 @@ def _table_ggg(T, l, p, d):
             T[l, p, 3] + d * (T[l, p, 2] + d * (0.5 * T[l, p, 1] + d * T[l, p, 0] / 6.0)))
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=set(CONTRACT))
 def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, pre, pceT,
             pccT, cxn, cyl, boff, bnodes, ends, bands, tau, out, r_start, r_end, pmax, stats):
     w = pccT.shape[1]

@@ -278,3 +278,31 @@ def test_row_polynomial_matches_numpy(D):
     pi._poly_row(rv, c, colT, out)
     want = np.polynomial.legendre.legval(u, rv @ c)
     np.testing.assert_allclose(out, want, rtol=1e-13, atol=1e-13 * np.abs(rv @ c).sum())
+
+
+@pytest.mark.parametrize("ay, by, H, ylo, yhi", [
+    (0.0, 0.25 / 40, 40, 3.3, 11.7),                 # every fourth mask row a texel row
+    # `paper`'s views: the scene's far offset makes each texel boundary the round-off of a
+    # large difference, which once left a 10⁻⁹ sliver gap after most texel rows.
+    (-3.263504752305342, 0.002228244376807608, 1800, 1706.31, 1713.94),
+    (3.262572144935613, -0.0022282449994869176, 1800, 1300.31, 1307.94)])
+def test_row_gaps_cut_once_at_every_boundary(ay, by, H, ylo, yhi):
+    """A row's gaps end at every mask-row and texel-row boundary inside its y range and nowhere
+    else: no sliver after a gap that ended on a texel boundary, one cut where a texel boundary
+    lies on a mask boundary; each gap's rows are those of its middle."""
+    n_mask, pmax = 1720, 128
+    pmr, ptr = np.zeros(pmax, np.int64), np.zeros(pmax, np.int64)
+    bounds = np.empty(pmax + 1)
+    ng = pi._row_gaps(ylo, yhi, ay, by, H, n_mask, pmr, ptr, bounds)
+    t = np.sort((ay + by * np.array([ylo, yhi])) * H)
+    texel = (np.arange(np.floor(t[0]), np.ceil(t[1]) + 1) / H - ay) / by
+    cuts = np.concatenate([np.arange(np.ceil(ylo), yhi), texel])
+    cuts = np.unique(np.round(cuts[(cuts > ylo) & (cuts < yhi)], 8))
+    assert ng == cuts.size + 1
+    np.testing.assert_allclose(bounds[1:ng], cuts, rtol=0, atol=1e-8)
+    assert bounds[0] == ylo and bounds[ng] == yhi
+    mid = 0.5 * (bounds[:ng] + bounds[1:ng + 1])
+    mr = np.floor(mid).astype(np.int64)
+    tr = np.floor((ay + by * mid) * H).astype(np.int64)
+    np.testing.assert_array_equal(pmr[:ng], np.where(mr < n_mask, mr, -1))
+    np.testing.assert_array_equal(ptr[:ng], np.where((tr >= 0) & (tr < H), tr, -1))
