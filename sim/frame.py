@@ -160,11 +160,16 @@ class FrameModel:
         f = np.ascontiguousarray(cube if len(lit) == n_bands else cube[:, :, lit], np.float32)
         tr.prepare(lit, f.shape[1])
         R = self.blur.reach(lit)
-        irr = None
+        irr = size = None
         for k, rect in enumerate(tr.maps.rects):
             r0, c0, h, w = (int(v) for v in rect)
-            irr = tr.view_bands(f, k, lit, out=irr)
-            part = self.blur(irr, lit)
+            # Each band's image is integrated straight into the zero-padded buffer its blur
+            # transforms (its padding stays zero: only the view's (h, w) is ever written).
+            if irr is None or size != (h, w):
+                irr = np.zeros((len(lit),) + self.blur.shape(h, w, lit), np.float32)
+                size = (h, w)
+            tr.view_bands(f, k, lit, out=irr)
+            part = self.blur(irr, lit, size=size)
             a0, a1 = max(r0 - R, 0), min(r0 + h + R, Hs)
             b0, b1 = max(c0 - R, 0), min(c0 + w + R, Ws)
             o0, p0 = a0 - (r0 - R), b0 - (c0 - R)

@@ -28,6 +28,7 @@ Grasshopper 3. It is not a measured curve of any one device. ``"flat"`` is an id
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from recon.errors import InputError
 from recon.kernels import cores
@@ -167,9 +168,10 @@ class BlurredSum:
     one forward transform per band and one inverse per view, where a direct blur costs a
     forward and an inverse per band and its kernel's transform besides.  The images are padded
     with zeros to a fast transform size at least ``h + 2R`` (``R`` the widest kernel's half
-    width), so the circular convolution is the linear one; every kernel is centred in a common
-    ``(2R+1)²`` square, so the sum lines up.  The result (h + 2R, w + 2R) covers the view
-    widened by ``R``: the whole of its blur.  Float32 transforms: round-off ~10⁻⁷ of the peak.
+    width, :meth:`shape`), so the circular convolution is the linear one; every kernel is
+    centred in a common ``(2R+1)²`` square, so the sum lines up.  The result (h + 2R, w + 2R)
+    covers the view widened by ``R``: the whole of its blur.  Float32 transforms: round-off
+    ~10⁻⁷ of the peak.
 
     Parameters
     ----------
@@ -190,6 +192,17 @@ class BlurredSum:
             return 0
         return max(self.kernels[l].shape[0] // 2 for l in bands)
 
+    def shape(self, h: int, w: int, bands) -> tuple[int, int]:
+        """The transforms' shape for (h, w) images of ``bands``: the fast real-transform sizes
+        at least (h + 2R, w + 2R); (h, w) itself where no band is blurred."""
+        from scipy import fft
+
+        R = self.reach(bands)
+        if R == 0:
+            return h, w
+        return (fft.next_fast_len(h + 2 * R, real=True),
+                fft.next_fast_len(w + 2 * R, real=True))
+
     def _kernel_fft(self, l, R, shape):
         from scipy import fft
 
@@ -202,8 +215,12 @@ class BlurredSum:
             self._fk[key] = fft.rfft2(pad, workers=1)
         return self._fk[key]
 
-    def __call__(self, images, bands) -> np.ndarray:
-        """:math:`S` (h + 2R, w + 2R) float32 of ``images`` (La, h, w), the bands ``bands``.
+    def __call__(self, images, bands, size=None) -> np.ndarray:
+        """:math:`S` (h + 2R, w + 2R) float32 of ``images``, the bands ``bands``.
+
+        ``images`` is (La, h, w); or, with ``size`` = (h, w), (La, *:meth:`shape`*) holding
+        the (h, w) images in its top-left corner and zeros elsewhere, transformed as they are
+        (a caller that integrates straight into such a buffer spares a copy of every band).
 
         The bands are split between two threads in a fixed way (halves) and their sums added
         in a fixed order, so the result does not depend on which thread finishes first, nor on
@@ -213,27 +230,33 @@ class BlurredSum:
         from scipy import fft
 
         bands = [int(l) for l in bands]
-        h, w = images.shape[1:]
+        h, w = images.shape[1:] if size is None else (int(size[0]), int(size[1]))
         R = self.reach(bands)
         if R == 0:
             out = np.zeros((h, w), np.float32)
             for i, l in enumerate(bands):
-                out += images[i] * self.scales[l]
+                out += images[i, :h, :w] * self.scales[l]
             return out
-        shape = (fft.next_fast_len(h + 2 * R, real=True), fft.next_fast_len(w + 2 * R, real=True))
+        shape = self.shape(h, w, bands)
+        padded = images.shape[1:] == shape
+        if size is not None and not padded:
+            raise ValueError(f"images of size {tuple(size)} must come padded to {shape}")
         fk = [self._kernel_fft(l, R, shape) for l in bands]     # before the threads
 
         def half(idx):
             acc = None
-            pad = np.zeros(shape, np.float32)
+            pad = None if padded else np.zeros(shape, np.float32)
             for i in idx:
-                pad[:h, :w] = images[i]
-                term = fft.rfft2(pad, workers=1)
-                term *= fk[i]
+                if padded:
+                    term = fft.rfft2(images[i], workers=1)
+                else:
+                    pad[:h, :w] = images[i]
+                    term = fft.rfft2(pad, workers=1)
                 if acc is None:
+                    term *= fk[i]
                     acc = term
                 else:
-                    acc += term
+                    _multiply_add(acc, term, fk[i])
             return acc
 
         n = len(bands)
@@ -249,6 +272,15 @@ class BlurredSum:
             total += p
         full = fft.irfft2(total, s=shape, workers=min(2, cores()))
         return np.ascontiguousarray(full[:h + 2 * R, :w + 2 * R], np.float32)
+
+
+@njit(cache=True, nogil=True, fastmath={"contract"})
+def _multiply_add(acc, a, b):
+    """``acc += a * b`` element by element (complex64, one pass: NumPy would make the product
+    as a temporary and read it back)."""
+    x, y, z = acc.ravel(), a.ravel(), b.ravel()
+    for i in range(x.shape[0]):
+        x[i] += y[i] * z[i]
 
 
 def _as_cube(irradiance: np.ndarray, wavelengths) -> tuple[np.ndarray, np.ndarray]:

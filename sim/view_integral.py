@@ -43,9 +43,9 @@ shares; both are exact to the maps' 10⁻⁴ px; ``tests/sim/test_view_integral.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, uint64
 
-from sim.pixel_integral import (CONTRACT, STILL, _mean_width, _open, _panel, _panel_mean_d,
+from sim.pixel_integral import (CONTRACT, SIXTH, STILL, _mean_width, _open, _panel, _panel_mean_d,
                                 _poly_row, _row_gaps, _row_span, max_pieces)
 
 __all__ = ["KNOT", "Buckets", "buckets", "view_forward"]
@@ -104,7 +104,7 @@ def _table_ggg(T, l, p, d):
     """(GG, GGG) of band ``l`` at ``d`` past the start of the table's row ``p`` (g, G, GG,
     GGG there), as :func:`sim.pixel_integral._ggg` evaluates its own arrays."""
     return (T[l, p, 2] + d * (T[l, p, 1] + 0.5 * d * T[l, p, 0]),
-            T[l, p, 3] + d * (T[l, p, 2] + d * (0.5 * T[l, p, 1] + d * T[l, p, 0] / 6.0)))
+            T[l, p, 3] + d * (T[l, p, 2] + d * (0.5 * T[l, p, 1] + d * T[l, p, 0] * SIXTH)))
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=set(CONTRACT))
@@ -121,6 +121,8 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
     YE0 = np.empty((L, w))
     YE1 = np.empty((L, w))
     XC = np.empty(w)
+    ymn = np.empty(w)
+    ymx = np.empty(w)
     nk = int((xb[nint] - xb[0]) / KNOT) + 3
     yk0 = np.empty((nk, L))
     yk1 = np.empty((nk, L))
@@ -146,6 +148,14 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
     xlim[1:nint + 2] = xb
     xlim[nint + 2:] = np.inf
     located = False
+    # Walked indices (a knot's pixel, an edge's piece) are unsigned: Numba tests a signed index
+    # for wrap-around (a negative one counts from the end) at every read, and LLVM cannot drop
+    # the test for an index it cannot bound.  Unsigned arithmetic stays unsigned only with
+    # unsigned operands (with a signed one Numba goes to float), hence these constants.
+    one = uint64(1)
+    zero = uint64(0)
+    wm1 = uint64(max(w - 1, 0))
+    wm2 = uint64(max(w - 2, 0))
     mG = np.empty(w + 1)
     dGG = np.empty(w + 1)
     GG1 = np.empty(w + 1)
@@ -156,9 +166,6 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
     ptr_ = np.zeros(pmax, np.int64)
     n_mask = code.shape[0]
     for r in range(r_start, r_end):
-        for l in range(L):
-            for c in range(w):
-                out[l, r, c] = 0.0
         # The pixel edges' mask x at every node, every band's footprint bounds in mask y at
         # the pixel centres, and the row's y gaps (shared by every band and pixel).
         for j in range(N):
@@ -171,19 +178,38 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
             for l in range(L):
                 _poly_row(pre[r], cyl[l], pccT, YE1[l])
         YE0, YE1 = YE1, YE0
+        # The row's y extremes column by column over the bands first, then over the columns:
+        # one chain of min/max a row instead of one a band (a chain runs at its latency).
+        # Selects, not min/max: Numba's NaN-aware min and max keep the loop from vectorising
+        # (the bounds are polynomials of finite coefficients: never NaN).
         for l in range(L):
             _poly_row(pre[r + 1], cyl[l], pccT, YE1[l])
             for c in range(w):
-                Y0[l, c] = min(YE0[l, c], YE1[l, c])
-                Y1[l, c] = max(YE0[l, c], YE1[l, c])
-                ylo = min(ylo, Y0[l, c])
-                yhi = max(yhi, Y1[l, c])
+                a = YE0[l, c]
+                b = YE1[l, c]
+                lo_ = a if a < b else b
+                hi_ = b if a < b else a
+                Y0[l, c] = lo_
+                Y1[l, c] = hi_
+                if l == 0:
+                    ymn[c] = lo_
+                    ymx[c] = hi_
+                else:
+                    ymn[c] = lo_ if lo_ < ymn[c] else ymn[c]
+                    ymx[c] = hi_ if hi_ > ymx[c] else ymx[c]
+        for c in range(w):
+            ylo = min(ylo, ymn[c])
+            yhi = max(yhi, ymx[c])
         ng = _row_gaps(ylo, yhi, ay, by, H, n_mask, pmr, ptr_, bounds)
         if ng > 0 and bounds[ng] < yhi:
             stats[1] += 1             # more gaps than the scratch holds (a caller's error)
         stats[0] = max(stats[0], ng)
         lo, hi = _row_span(X, xb)
         if hi < lo:
+            # No piece under the row: dark.  (Every other row writes every pixel at its end.)
+            for l in range(L):
+                for c in range(w):
+                    out[l, r, c] = 0.0
             continue
         # Knots along mask x: every band's bounds there, and the gaps any band meets between
         # two knots.  They count from the partition's start, not the row's, so that a band's
@@ -201,14 +227,14 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
             # bounds is applied piece by piece, where the per-band kernel applies it.  A knot's
             # bracket is walked from the last (knots are ~3 px apart) and its fraction taken
             # with one division a knot, not one a pixel.
-            c = 0
+            c = uint64(0)
             for q in range(qa, nq):
                 xq = xk + q * KNOT
-                while c < w - 2 and XC[c + 1] <= xq:
-                    c += 1
-                while c > 0 and XC[c] > xq:
-                    c -= 1
-                c1 = min(c + 1, w - 1)
+                while c < wm2 and XC[c + one] <= xq:
+                    c += one
+                while c > zero and XC[c] > xq:
+                    c -= one
+                c1 = min(c + one, wm1)
                 t = (xq - XC[c]) / (XC[c1] - XC[c]) if c1 > c else 0.0
                 yk0[q, l] = Y0[l, c] + t * (Y0[l, c1] - Y0[l, c])
                 yk1[q, l] = Y1[l, c] + t * (Y1[l, c1] - Y1[l, c])
@@ -314,7 +340,7 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
                 T[l, k, 1] = Gl
                 T[l, k, 2] = GGl
                 T[l, k, 3] = GGGl
-                GGG[l] = GGGl + Lp * (GGl + Lp * (0.5 * Gl + Lp * acc[l] / 6.0))
+                GGG[l] = GGGl + Lp * (GGl + Lp * (0.5 * Gl + Lp * acc[l] * SIXTH))
                 GG[l] = GGl + Gl * Lp + 0.5 * acc[l] * Lp * Lp
                 G[l] = Gl + acc[l] * Lp
         # Every edge located at the panels' ends: PA = its piece (−1 before the first).  An
@@ -330,12 +356,12 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
             for j in ends:
                 for e in range(w + 1):
                     x = X[j, e]
-                    p = PA[j, e]
-                    while xlim[p + 2] <= x:
-                        p += 1
-                    while xlim[p + 1] > x:
-                        p -= 1
-                    PA[j, e] = p
+                    u = uint64(PA[j, e] + 1)      # xlim's index of the piece's start
+                    while xlim[u + one] <= x:
+                        u += one
+                    while xlim[u] > x:
+                        u -= one
+                    PA[j, e] = np.int64(u) - 1
         # The table's ends: row 0 before the row's pieces (all 0), the last past them (the
         # integrals carried on, g = 0), so that every edge, its piece clamped to
         # [lo − 1, hi + 1] (less lo − 1: an index into T), evaluates alike.
@@ -369,8 +395,9 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
                 for e in range(w + 1):
                     xa = X[j0, e]
                     xe = X[j1, e]
-                    pa = min(max(PA[j0, e], lo - 1), hi + 1) - lo + 1
-                    pe = min(max(PA[j1, e], lo - 1), hi + 1) - lo + 1
+                    # Unsigned (above): a clamped piece is never negative (13 % of this loop).
+                    pa = uint64(min(max(PA[j0, e], lo - 1), hi + 1) - lo + 1)
+                    pe = uint64(min(max(PA[j1, e], lo - 1), hi + 1) - lo + 1)
                     GGa, G3a = _table_ggg(T, l, pa, xa - xs[pa])
                     GGe, G3e = _table_ggg(T, l, pe, xe - xs[pe])
                     dGG[e] = GGe - GGa
@@ -425,8 +452,8 @@ def view_forward(f, code, view, relay, part, bucket: Buckets, geom, cxn, cyl, ba
         Each band's index into ``tau``.
     tau : (L, h, w) float32
         The view's throughput in every band.
-    out : (La, h, w) float32
-        Written at ``rows`` (all rows by default).
+    out : (La, ≥ h, ≥ w) float32
+        Written at ``rows`` (all rows by default), in its first ``w`` columns.
     """
     xb, mcol, tcol = part
     f = np.asarray(f)

@@ -37,9 +37,30 @@ def test_blurred_sum_is_the_sum_of_direct_blurs():
         want = _direct(images[bands], [kernels[l] for l in bands], scales[bands], R)
         assert got.shape == want.shape
         np.testing.assert_allclose(got, want, rtol=0, atol=2e-6 * float(want.max()))
+        # The images handed over already padded to the transforms' shape: the same bits.
+        shape = blur.shape(37, 52, bands)
+        assert shape[0] >= 37 + 2 * R and shape[1] >= 52 + 2 * R
+        padded = np.zeros((len(bands),) + shape, np.float32)
+        padded[:, :37, :52] = images[bands]
+        np.testing.assert_array_equal(blur(padded, bands, size=(37, 52)), got)
+        with pytest.raises(ValueError):
+            blur(padded[:, :-1], bands, size=(37, 52))
     # No kernels: the weighted sum itself.
     plain = sensor.BlurredSum(None, scales)(images, [0, 1, 2])
     np.testing.assert_allclose(plain, np.tensordot(scales, images, 1), rtol=1e-6)
+
+
+def test_multiply_add_is_numpys():
+    """The blurs' fused ``acc += a * b`` (complex64) against NumPy's product and sum."""
+    rng = np.random.default_rng(2)
+    a, b, acc = ((rng.standard_normal((33, 17, 2)) @ [1, 1j]).astype(np.complex64)
+                 for _ in range(3))
+    want = acc + a * b
+    # Round-off of the terms (the kernel may fuse a product and a sum into one rounding).
+    bound = 4 * np.finfo(np.float32).eps * (np.abs(acc) + np.abs(a) * np.abs(b))
+    sensor._multiply_add(acc, a, b)
+    assert (np.abs(acc - want) <= bound).all()
+    assert np.abs(want).max() > 1
 
 
 @pytest.mark.mitsuba

@@ -280,3 +280,17 @@ def test_threads_follow_the_cpus_the_process_may_use(monkeypatch, cpus):
         assert len(set(seen[6:])) == 1
     else:
         assert own not in seen
+
+
+@pytest.mark.parametrize("h, workers", [(900, 2), (900, 1), (900, 3), (97, 2), (5, 4), (1, 2)])
+def test_row_blocks_cover_the_rows_once_in_equal_shares(h, workers):
+    """Every row in exactly one block, in order; blocks of at most 48 rows and within a row of
+    each other; as many as a multiple of the threads wherever there are rows enough."""
+    from sim.transport import row_blocks
+
+    blocks = row_blocks(h, workers)
+    assert [r for a, b in blocks for r in range(a, b)] == list(range(h))
+    sizes = [b - a for a, b in blocks]
+    assert max(sizes) <= 48 and max(sizes) - min(sizes) <= 1
+    if h >= workers:
+        assert len(blocks) % workers == 0

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from recon.errors import InputError
 from sim import pixel_integral as pi
 from sim import view_integral as vi
 
@@ -88,6 +89,15 @@ def test_a_subset_of_bands_and_blocks_of_rows(small_transport):
     np.testing.assert_array_equal(whole, tr.view_bands(f, k))
     with pytest.raises(ValueError):
         view_forward(f.astype(np.float64), *args[1:], whole)
+    # Into a larger buffer (the blurs' zero-padded transforms): its top-left (h, w) of each
+    # band, the same bits, and nothing else touched.
+    big = np.full((len(bands), geom.h + 5, geom.w + 7), np.nan, np.float32)
+    tr.view_bands(f, k, out=big)
+    np.testing.assert_array_equal(big[:, :geom.h, :geom.w], whole)
+    assert np.isnan(big[:, geom.h:]).all() and np.isnan(big[:, :, geom.w:]).all()
+    for bad in (big[:, :-6], big[1:], big.astype(np.float64)):
+        with pytest.raises(InputError):
+            tr.view_bands(f, k, out=bad)
 
 
 @pytest.mark.mitsuba
