@@ -98,6 +98,13 @@ def test_a_subset_of_bands_and_blocks_of_rows(small_transport):
     for bad in (big[:, :-6], big[1:], big.astype(np.float64)):
         with pytest.raises(InputError):
             tr.view_bands(f, k, out=bad)
+    # A partition that no row reaches (moved far down mask x): every row dark, written as 0.
+    xb, mcol, tcol = args[4]
+    far = (xb - 1e4, mcol, tcol)
+    dark = np.full_like(whole, np.nan)
+    view_forward(*args[:4], far, vi.buckets(far[0], 1.0 / (f.shape[1] * tr.maps.relay[k][1])),
+                 *args[6:], dark)
+    assert not dark.any() and not np.isnan(dark).any()
 
 
 @pytest.mark.mitsuba
