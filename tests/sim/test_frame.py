@@ -50,8 +50,45 @@ def test_blurred_sum_is_the_sum_of_direct_blurs():
     np.testing.assert_allclose(plain, np.tensordot(scales, images, 1), rtol=1e-6)
 
 
+def test_ccs_multiplier_is_opencvs_spectrum_product():
+    """A real spectrum laid out as OpenCV's packed transform: the element-wise product equals
+    OpenCV's own product of packed spectra (``mulSpectrums``), for an even kernel centred on
+    the origin, and the blur it gives is the circular convolution."""
+    import cv2
+
+    rng = np.random.default_rng(4)
+    shape = (24, 30)
+    k = sensor.airy_kernel(1.3).astype(np.float64)
+    r = k.shape[0] // 2
+    pad = np.zeros(shape)
+    pad[:k.shape[0], :k.shape[1]] = k
+    pad = np.roll(pad, (-r, -r), axis=(0, 1))
+    spec = np.fft.rfft2(pad)
+    assert np.abs(spec.imag).max() < 1e-9        # an even kernel: a real spectrum
+    mult = sensor.ccs_multiplier(spec.real)
+    assert mult.shape == shape and mult.dtype == np.float32
+    img = rng.random(shape).astype(np.float32)
+    F = cv2.dft(img)
+    want = cv2.mulSpectrums(F, cv2.dft(pad.astype(np.float32)), 0)
+    np.testing.assert_allclose(F * mult, want, rtol=0, atol=1e-5 * np.abs(want).max())
+    blurred = cv2.dft(F * mult, flags=cv2.DFT_INVERSE | cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
+    circ = np.fft.irfft2(np.fft.rfft2(img.astype(np.float64)) * spec, s=shape)
+    np.testing.assert_allclose(blurred, circ, rtol=0, atol=1e-6 * circ.max())
+    with pytest.raises(ValueError):
+        sensor.ccs_multiplier(spec.real[:-1])     # an odd height
+
+
+def test_blurred_sum_refuses_a_kernel_that_is_not_symmetric():
+    """A kernel with an odd part has no real spectrum: refused, not blurred wrongly."""
+    k = sensor.airy_kernel(1.2)
+    k[0, 0] += 0.1
+    with pytest.raises(ValueError, match="symmetric"):
+        sensor.BlurredSum([k], [1.0])(np.ones((1, 8, 9), np.float32), [0])
+
+
 def test_multiply_add_is_numpys():
-    """The blurs' fused ``acc += a * b`` (complex64) against NumPy's product and sum."""
+    """The blurs' fused ``acc += a * b`` against NumPy's product and sum (complex64, and
+    float32 as the packed spectra take it)."""
     rng = np.random.default_rng(2)
     a, b, acc = ((rng.standard_normal((33, 17, 2)) @ [1, 1j]).astype(np.complex64)
                  for _ in range(3))
@@ -61,6 +98,11 @@ def test_multiply_add_is_numpys():
     sensor._multiply_add(acc, a, b)
     assert (np.abs(acc - want) <= bound).all()
     assert np.abs(want).max() > 1
+    x, y, z = (rng.standard_normal((33, 34)).astype(np.float32) for _ in range(3))
+    want = x + y * z
+    sensor._multiply_add(x, y, z)
+    bound = 4 * np.finfo(np.float32).eps * (np.abs(want) + np.abs(y * z))
+    assert (np.abs(x - want) <= bound).all()
 
 
 @pytest.mark.mitsuba
