@@ -346,11 +346,14 @@ def floor_chrome(masks) -> np.ndarray:
 
 def sensor_noise(design, caps):
     """The sensor's photon-transfer curve ``[a, b]`` (:mod:`recon.calibration.noise`) from the
-    captures' pair of single frames; None without one (captures of fewer than 2 repeats)."""
+    captures' pairs of single frames, pooled; None without one (captures of fewer than 2
+    repeats)."""
     from recon.calibration.noise import photon_transfer
 
-    pair = caps.noise_pair
-    return None if pair is None else photon_transfer(pair[0], pair[1], design.max_dn)
+    frames = caps.noise_frames
+    if frames is None:
+        return None
+    return photon_transfer(frames[0::2], frames[1::2], design.max_dn)
 
 
 def _radiometry(design, caps, cal, model) -> np.ndarray:

@@ -88,7 +88,7 @@ FORMAT = "kaleidospec-calibration"
 VERSION = 1
 #: Calibration code version (part of the cache key, :func:`calibration_path`): bump it when the
 #: capture renderer or the application's calibration steps (kaleidospec.calibrate) change.
-CODE_VERSION = 12
+CODE_VERSION = 13
 _CODE_VERSION: str | None = None
 ARRAY_FIELDS = ("view_boxes", "homographies", "mask_images", "offsets", "gains", "wavelengths")
 #: Arrays a calibration may hold (saved only when set).

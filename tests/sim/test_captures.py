@@ -103,7 +103,7 @@ def test_render_captures_is_complete_and_tagged():
     d = get_design("small", OVR)
     before = set(transport._MEMO)
     caps = render_captures(d, repeats=1)
-    assert caps.noise_pair is None              # one repeat: no pair of single frames
+    assert caps.noise_frames is None            # one repeat: no pair of single frames
     L = d.n_bands
     hs, ws = d.sensor_height_px, d.sensor_width_px
     assert caps.white.shape == caps.line.shape == (L, hs, ws)

@@ -1,4 +1,4 @@
-"""The photon-transfer fit recovers a sensor's noise from a pair of frames; bad input is refused."""
+"""The photon-transfer fit recovers a sensor's noise from pairs of frames; bad input is refused."""
 
 import numpy as np
 import pytest
@@ -47,6 +47,25 @@ def test_the_pattern_cancels():
     f1 = photon_transfer(*_pair(flat, seed=3), MAX_DN)
     f2 = photon_transfer(*_pair(_coded_target(seed=4), seed=5), MAX_DN)
     assert abs(f1[0] / f2[0] - 1) < 0.02, (f1, f2)
+
+
+def test_pairs_pooled_tighten_the_fit():
+    """Stacks of pairs (``a[i]``, ``b[i]``) are pooled: the same fit as the pairs one above the
+    other in one frame, and over many noise draws two pairs spread the gain less than one does
+    (by about √2: the groups' variances are means over twice the pixels)."""
+    target = _coded_target(shape=(120, 160))
+    one, two = [], []
+    for seed in range(24):
+        a1, b1 = _pair(target, seed=2 * seed)
+        a2, b2 = _pair(target, seed=2 * seed + 1)
+        pooled = photon_transfer(np.stack([a1, a2]), np.stack([b1, b2]), MAX_DN)
+        above = photon_transfer(np.vstack([a1, a2]), np.vstack([b1, b2]), MAX_DN)
+        np.testing.assert_array_equal(pooled, above)
+        one.append(photon_transfer(a1, b1, MAX_DN)[0] / TRUE[0] - 1)
+        two.append(pooled[0] / TRUE[0] - 1)
+    ratio = np.std(two) / np.std(one)
+    assert ratio < 0.85, ratio
+    assert abs(np.mean(two)) < 3 * np.std(two) / np.sqrt(len(two))
 
 
 def test_noise_rms_is_the_mean_variance():
