@@ -22,8 +22,16 @@ scene frames' realisation, though all three converge to the same optics.
 view sees the scene upright: the same masks and dispersion without the dispersion inversion of
 the mirrored views (paper Fig. 8c), a hypothetical system.
 
+Each application runs view by view, as a frame does (:meth:`sim.frame.FrameModel.electrons`):
+the view's bands integrated exactly (:func:`sim.pixel_integral.band_forward`, bands on
+threads), then weighted, blurred and summed by FFT (:class:`sim.sensor.BlurredSum`: one
+transform a band and one a view); the adjoint blurs the measurement once a view and takes one
+inverse transform a band (:meth:`~sim.sensor.BlurredSum.adjoint`).  Only the views whose
+blurred light reaches a measured rectangle are integrated.
+
 Memory: the transport's maps and throughput images (``views × v² × L`` floats: 5 MB for
-``small``, 420 MB for ``paper``) and one sensor image per thread.
+``small``, 420 MB for ``paper``), one view's bands at the transforms' size (96 MB for
+``paper``) and the sensor widened by the blur's reach.
 """
 
 from __future__ import annotations
@@ -86,7 +94,7 @@ class ExactOperator(LinearOperator):
     def __init__(self, design, transport, view_ids, grid=None, *, inversion: bool = True,
                  diffraction: bool = True):
         from sim.design import VIEW_GRID
-        from sim.sensor import airy_kernel
+        from sim.sensor import BlurredSum, airy_kernel
 
         v = design.view_size_px
         grid = (v, v) if grid is None else tuple(int(x) for x in grid)
@@ -102,6 +110,14 @@ class ExactOperator(LinearOperator):
         self.cell_px = float(design.mask_cell_px)
         self.kernels = ([airy_kernel(float(design.airy_radius_um(lam)) / design.sensor_pixel_um)
                          for lam in wl] if diffraction else None)
+        self.blur = BlurredSum(self.kernels, self.q)
+        # The traced views whose blurred light reaches a measured rectangle: only theirs is
+        # integrated (the blur carries light across the rectangles' borders, by R at most).
+        R = self.blur.reach(range(wl.size))
+        self.lit_views = [k for k, (r0, c0, h, w) in enumerate(self.all_rects)
+                          if any(r0 - R < a0 + ha and a0 < r0 + h + R
+                                 and c0 - R < b0 + wa and b0 < c0 + w + R
+                                 for a0, b0, ha, wa in self.rects)]
         self.flip_of = []
         for i in transport.views:
             r, c = VIEW_GRID[int(i)] if design.kaleidoscope else (1, 1)
@@ -114,54 +130,56 @@ class ExactOperator(LinearOperator):
         return np.ascontiguousarray(np.flip(img, axis=axes)) if axes else img
 
     def _forward(self, x):
-        from sim.sensor import blur_views
-        from sim.transport import ordered_sum
+        from sim.transport import each
 
         dt = np.float64 if x.dtype == np.float64 else np.float32
         x32 = np.asarray(x, np.float32)
+        bands = range(self.ishape[0])
+        R = self.blur.reach(bands)
+        # The sensor widened by R on every side, so that no view's blur is clipped.
+        total = np.zeros((self.tr.sensor[0] + 2 * R, self.tr.sensor[1] + 2 * R), np.float32)
+        for k in self.lit_views:
+            r0, c0, h, w = self.all_rects[k]
+            # View by view: every band's exact pixel integrals, then the bands' blurs weighted
+            # and summed by FFT (sim.sensor.BlurredSum, as a frame's), added where they fall.
+            irr = np.zeros((len(bands),) + self.blur.shape(h, w, bands), np.float32)
 
-        def one(l):
-            # Every traced view's light, since the blur carries some across the rectangles'
-            # borders, whether or not its view is measured.
-            img = np.zeros(self.tr.sensor, np.float32)
-            for k, (r0, c0, h, w) in enumerate(self.all_rects):
-                img[r0:r0 + h, c0:c0 + w] = self.tr.view_band(self._flip(x32[l], self.flip_of[k]),
-                                                              k, l)
-            if self.kernels is not None:
-                img = blur_views(img, self.kernels[l], self.rects)
-            return self.q[l] * np.stack([img[r0:r0 + h, c0:c0 + w]
-                                         for r0, c0, h, w in self.rects]).astype(np.float64)
+            def one(l, k=k, irr=irr, h=h, w=w):
+                irr[l, :h, :w] = self.tr.view_band(self._flip(x32[l], self.flip_of[k]), k, l)
 
-        out = ordered_sum(one, range(self.ishape[0]), np.zeros(self.oshape, np.float64))
+            each(one, bands)
+            total[r0:r0 + h + 2 * R, c0:c0 + w + 2 * R] += self.blur(irr, bands, size=(h, w))
+        out = np.stack([total[r0 + R:r0 + R + h, c0 + R:c0 + R + w]
+                        for r0, c0, h, w in self.rects]).astype(np.float64)
         return out.astype(dt)
 
     def _adjoint(self, y):
-        from sim.sensor import blur_views
         from sim.transport import each
 
         dt = np.float64 if y.dtype == np.float64 else np.float32
-        img0 = np.zeros(self.tr.sensor, np.float32)
+        bands = range(self.ishape[0])
+        R = self.blur.reach(bands)
+        img0 = np.zeros((self.tr.sensor[0] + 2 * R, self.tr.sensor[1] + 2 * R), np.float32)
         for j, (r0, c0, h, w) in enumerate(self.rects):
-            img0[r0:r0 + h, c0:c0 + w] = y[j]
+            img0[r0 + R:r0 + R + h, c0 + R:c0 + R + w] = y[j]
         out = np.zeros(self.ishape, np.float64)
+        for k in self.lit_views:
+            r0, c0, h, w = self.all_rects[k]
+            # Every band's weighted blur of the measurement over this view (the Airy kernel is
+            # symmetric: blurring is its own adjoint), then the pixel integrals' adjoints.
+            e = self.blur.adjoint(img0[r0:r0 + h + 2 * R, c0:c0 + w + 2 * R], bands, (h, w))
 
-        def one(l):
-            # The Airy kernel is symmetric: blurring is its own adjoint.
-            img = blur_views(img0, self.kernels[l], self.rects) if self.kernels is not None \
-                else img0
-            acc = out[l]                 # each band its own slice: no two threads share one
-            flipped = None
-            for k, (r0, c0, h, w) in enumerate(self.all_rects):
-                e = np.ascontiguousarray(img[r0:r0 + h, c0:c0 + w]) * self.q[l]
-                if not e.any():
-                    continue
+            def one(l, k=k, e=e):
+                if not e[l].any():
+                    return
+                acc = out[l]             # each band its own slice: no two threads share one
                 if self.flip_of[k]:
-                    flipped = self.tr.view_band_adjoint(e, k, l, self.ishape[1:])
+                    flipped = self.tr.view_band_adjoint(e[l], k, l, self.ishape[1:])
                     acc += np.flip(flipped, axis=self.flip_of[k])
                 else:
-                    self.tr.view_band_adjoint(e, k, l, self.ishape[1:], fbar=acc)
+                    self.tr.view_band_adjoint(e[l], k, l, self.ishape[1:], fbar=acc)
 
-        each(one, range(self.ishape[0]))
+            each(one, bands)
         return out.astype(dt)
 
     def mean_row_norm_sq(self) -> float:

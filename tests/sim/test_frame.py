@@ -50,6 +50,27 @@ def test_blurred_sum_is_the_sum_of_direct_blurs():
     np.testing.assert_allclose(plain, np.tensordot(scales, images, 1), rtol=1e-6)
 
 
+def test_blurred_sum_adjoint_is_its_adjoint():
+    """``adjoint`` against the sum's own transpose: <S(E), Y> = Σ_l <E_l, S*(Y)_l>, for kernels
+    of different reach and for none; its image must be the view widened by the reach."""
+    rng = np.random.default_rng(7)
+    kernels = [sensor.airy_kernel(r) for r in (0.8, 1.6, 2.4)]
+    scales = np.array([1.0, 0.5, 2.0])
+    images = rng.standard_normal((3, 21, 34)).astype(np.float32)
+    for kern in (kernels, None):
+        blur = sensor.BlurredSum(kern, scales)
+        for bands in ([0, 1, 2], [2, 0], [1]):
+            R = blur.reach(bands)
+            Y = rng.standard_normal((21 + 2 * R, 34 + 2 * R)).astype(np.float32)
+            fwd = blur(images[bands], bands).astype(np.float64)
+            adj = blur.adjoint(Y, bands, (21, 34)).astype(np.float64)
+            lhs = float(np.sum(fwd * Y))
+            rhs = float(np.sum(images[bands] * adj))
+            assert abs(lhs - rhs) <= 1e-5 * np.sqrt(np.sum(fwd ** 2) * np.sum(Y ** 2)), (lhs, rhs)
+            with pytest.raises(ValueError, match="widened"):
+                blur.adjoint(Y[:-1], bands, (21, 34))
+
+
 def test_ccs_multiplier_is_opencvs_spectrum_product():
     """A real spectrum laid out as OpenCV's packed transform: the element-wise product equals
     OpenCV's own product of packed spectra (``mulSpectrums``), for an even kernel centred on
@@ -135,7 +156,7 @@ def test_electrons_equal_the_whole_sensor_sum(shared_cache, diffraction):
         for k, (r0, c0, h, w) in enumerate(rects):
             img[r0:r0 + h, c0:c0 + w] = tr.view_band(np.ascontiguousarray(cube[:, :, l]), k, l)
         if diffraction:
-            img = sensor.blur_views(img, model.kernels[l], rects)
+            img = sensor.airy_blur(img, kernel=model.kernels[l])
         img *= model.scale[l]
         want += img
     np.maximum(want, 0.0, out=want)

@@ -74,6 +74,20 @@ def test_forward_predicts_the_rendered_frame(scene):
     assert not np.array_equal(own, model)
 
 
+def test_fewer_measured_views_measure_the_same_light(scene):
+    """Only the views whose blur reaches a measured rectangle are integrated: measuring the
+    centre alone gives what it gives among five, the neighbours' blurred light included."""
+    d, cube, frame, meta = scene
+    x = np.ascontiguousarray(np.moveaxis(cube, 2, 0))
+    one, five = oracle_operator(d, 1), oracle_operator(d, 5)
+    assert 0 in one.lit_views and set(one.lit_views) <= set(five.lit_views)
+    a, b = one.forward(x)[0], five.forward(x)[0]
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-6 * float(b.max()))
+    # A view far from the measured ones is left out: its light never reaches them.
+    far = oracle_operator(d, 1, diffraction=False)
+    assert far.lit_views == [0]
+
+
 def test_no_inversion_is_another_valid_operator(scene):
     d, cube, frame, meta = scene
     a = oracle_operator(d, 2)

@@ -119,22 +119,3 @@ def test_end_bands_count_the_photons_their_filter_passes():
     per_nm = scale / (d.wavelengths * band_widths(d))       # QE flat: the same for every band
     np.testing.assert_allclose(per_nm, per_nm[1], rtol=1e-12)
     assert scale[0] / scale[1] == pytest.approx(0.5 * 450 / 475, rel=1e-12)
-
-
-def test_blur_views_equals_the_full_blur_around_the_views():
-    d = SMALL
-    rects = [d.view_rect(v) for v in d.views]
-    rng = np.random.default_rng(0)
-    img = np.zeros((d.sensor_height_px, d.sensor_width_px), np.float32)
-    for r0, c0, h, w in rects:
-        img[r0:r0 + h, c0:c0 + w] = rng.random((h, w))
-    k = sensor.airy_kernel(1.7)
-    full = sensor.airy_blur(img, kernel=k)
-    part = sensor.blur_views(img, k, rects)
-    np.testing.assert_allclose(part, full, atol=1e-6)
-    # Only where the blur reaches from a view is there anything to compute.
-    reach = np.zeros(img.shape, bool)
-    r = k.shape[0] // 2
-    for r0, c0, h, w in rects:
-        reach[max(r0 - r, 0):r0 + h + r, max(c0 - r, 0):c0 + w + r] = True
-    assert np.all(part[~reach] == 0) and np.abs(full[~reach]).max() < 1e-6
