@@ -138,11 +138,15 @@ class ExactOperator(LinearOperator):
         R = self.blur.reach(bands)
         # The sensor widened by R on every side, so that no view's blur is clipped.
         total = np.zeros((self.tr.sensor[0] + 2 * R, self.tr.sensor[1] + 2 * R), np.float32)
+        irr = size = None
         for k in self.lit_views:
             r0, c0, h, w = self.all_rects[k]
             # View by view: every band's exact pixel integrals, then the bands' blurs weighted
             # and summed by FFT (sim.sensor.BlurredSum, as a frame's), added where they fall.
-            irr = np.zeros((len(bands),) + self.blur.shape(h, w, bands), np.float32)
+            # One zero-padded buffer serves views of one size: only their (h, w) is written.
+            if irr is None or size != (h, w):
+                irr = np.zeros((len(bands),) + self.blur.shape(h, w, bands), np.float32)
+                size = (h, w)
 
             def one(l, k=k, irr=irr, h=h, w=w):
                 irr[l, :h, :w] = self.tr.view_band(self._flip(x32[l], self.flip_of[k]), k, l)

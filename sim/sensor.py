@@ -210,8 +210,6 @@ class BlurredSum:
         The bands are split between two threads in a fixed way (halves) and their sums added
         in a fixed order, so the result does not depend on which thread finishes first, nor on
         the number of cores."""
-        from concurrent.futures import ThreadPoolExecutor
-
         import cv2
 
         bands = [int(l) for l in bands]
@@ -246,14 +244,7 @@ class BlurredSum:
                     _multiply_add(acc, term, fk[i])
             return acc
 
-        n = len(bands)
-        splits = [range(0, (n + 1) // 2), range((n + 1) // 2, n)]
-        if n > 1 and cores() > 1:
-            with ThreadPoolExecutor(2) as pool:     # OpenCV's transforms release the GIL
-                parts = list(pool.map(half, splits))
-        else:
-            parts = [half(s) for s in splits]
-        parts = [p for p in parts if p is not None]
+        parts = [p for p in _by_halves(half, len(bands)) if p is not None]
         total = parts[0]
         for p in parts[1:]:
             total += p
@@ -269,7 +260,6 @@ class BlurredSum:
                 out[ro, co] = full[ri, ci]
         return out
 
-
     def adjoint(self, image, bands, size) -> np.ndarray:
         r"""The adjoint of :meth:`__call__`: each band's image (La, h, w) float32,
 
@@ -278,8 +268,6 @@ class BlurredSum:
         of ``image`` :math:`Y` (h + 2R, w + 2R), the view widened by the reach (the kernels
         are symmetric: the correlation is the convolution).  One forward transform for all
         bands and one inverse per band; the bands split between two threads as there."""
-        from concurrent.futures import ThreadPoolExecutor
-
         import cv2
 
         bands = [int(l) for l in bands]
@@ -311,15 +299,23 @@ class BlurredSum:
                 cv2.dft(prod, dst=back, flags=flags)
                 out[i] = back[R:R + h, R:R + w]
 
-        n = len(bands)
-        splits = [range(0, (n + 1) // 2), range((n + 1) // 2, n)]
-        if n > 1 and cores() > 1:
-            with ThreadPoolExecutor(2) as pool:
-                list(pool.map(half, splits))
-        else:
-            for sp in splits:
-                half(sp)
+        _by_halves(half, len(bands))
         return out
+
+
+def _by_halves(fn, n: int) -> list:
+    """``fn`` of the first and second half of ``range(n)``, in that order: a fixed split, so a
+    sum of the results does not depend on which finishes first; on two threads where there are
+    two cores and two bands (OpenCV's transforms release the GIL).  Not
+    :func:`sim.transport.each`: importing it here would close an import cycle
+    (``tests/test_layout.py``)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    halves = [range(0, (n + 1) // 2), range((n + 1) // 2, n)]
+    if n > 1 and cores() > 1:
+        with ThreadPoolExecutor(2) as pool:
+            return list(pool.map(fn, halves))
+    return [fn(h) for h in halves]
 
 
 def _fast_even(n: int) -> int:
