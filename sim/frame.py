@@ -18,6 +18,8 @@ calibration capture and the scene it calibrates).
 
 from __future__ import annotations
 
+import threading
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -131,19 +133,33 @@ class FrameModel:
             self.kernels = [airy_kernel(float(design.airy_radius_um(lam)) / design.sensor_pixel_um)
                             for lam in self.bands_nm]
         self.blur = BlurredSum(self.kernels, self.scale)
+        self._buffers = {}
+        self._lock = threading.Lock()
 
     def electrons(self, cube) -> np.ndarray:
         """Mean photo-electrons (Hs, Ws) float32 of ``cube`` (H, W, L) for a radiance scale of 1.
 
         View by view: every lit band's irradiance in one pass over the view's rows
-        (:meth:`sim.transport.Transport.view_bands`, rows on threads), then the bands' blurs of
-        the view alone, weighted and summed by FFT (:class:`sim.sensor.BlurredSum`), added over
-        the view widened by the blur's reach.  The blur is linear, so the views' blurs add up
-        to the blur of the whole sensor; nothing depends on which thread finishes first, so a
-        frame is the same to the bit every time.  Dark bands are skipped: a band-pass capture
-        lights one.
+        (:meth:`sim.transport.Transport.view_blocks`, blocks of rows on threads), then the
+        bands' blurs of the view alone, weighted and summed by FFT (:class:`sim.sensor.
+        BlurredSum`), added over the view widened by the blur's reach.  The views overlap: the
+        threads take the previous view's blur (its bands' spectra, in two fixed halves) between
+        the first blocks of rows of the next, so that a transform, bound by memory, runs beside
+        an integral, bound by arithmetic, and no thread waits between the two; this thread adds
+        each view's blur to the frame as its halves come in.  The blur is linear, so the views'
+        blurs add up to the blur of the whole sensor; every sum is taken in a fixed order, so a
+        frame is the same to the bit whichever thread finishes first and on any number of
+        cores.  Dark bands are skipped: a band-pass capture lights one.
+
+        The zero-padded images the blurs transform (two per view size: one integrated while
+        the other is blurred; 96 MiB each on ``paper``) are kept for the next frame.
         """
+        from concurrent.futures import ThreadPoolExecutor
+        from functools import partial
+
+        from recon.kernels import cores
         from sim.bands import check_cube
+        from sim.sensor import halves
 
         cube, _, peaks = check_cube(self.design, cube, self.wavelengths, peaks=True)
         if self.source_band is not None:
@@ -160,23 +176,78 @@ class FrameModel:
         f = np.ascontiguousarray(cube if len(lit) == n_bands else cube[:, :, lit], np.float32)
         tr.prepare(lit, f.shape[1])
         R = self.blur.reach(lit)
-        irr = size = None
-        for k, rect in enumerate(tr.maps.rects):
-            r0, c0, h, w = (int(v) for v in rect)
-            # Each band's image is integrated straight into the zero-padded buffer its blur
-            # transforms (its padding stays zero: only the view's (h, w) is ever written).
-            if irr is None or size != (h, w):
-                irr = np.zeros((len(lit),) + self.blur.shape(h, w, lit), np.float32)
-                size = (h, w)
-            tr.view_bands(f, k, lit, out=irr)
-            part = self.blur(irr, lit, size=size)
+
+        def size(k):
+            return int(tr.maps.rects[k][2]), int(tr.maps.rects[k][3])
+
+        def add(k, part):
+            r0, c0 = (int(v) for v in tr.maps.rects[k][:2])
+            h, w = size(k)
             a0, a1 = max(r0 - R, 0), min(r0 + h + R, Hs)
             b0, b1 = max(c0 - R, 0), min(c0 + w + R, Ws)
             o0, p0 = a0 - (r0 - R), b0 - (c0 - R)
             total[a0:a1, b0:b1] += part[o0:o0 + a1 - a0, p0:p0 + b1 - b0]
+
+        def blur(k, images):
+            return [partial(self.blur.spectrum, images, lit, half, size(k))
+                    for half in halves(len(lit))]
+
+        with self._workspace() as buffers, ThreadPoolExecutor(cores()) as pool:
+            due = None      # (view, its images) whose blur the threads take next
+            used = set()
+            for k in range(len(tr.maps.rects)):
+                h, w = size(k)
+                shape = self.blur.shape(h, w, lit)
+                # Each band's image is integrated straight into the zero-padded buffer its
+                # blur transforms (its padding stays zero: only the view's (h, w) is ever
+                # written); two per size, so that one is blurred while the other is written.
+                key = (len(lit), h, w, shape)
+                used.add(key)
+                pair = buffers.setdefault(key, [])
+                irr = next((b for b in pair if due is None or b is not due[1]), None)
+                if irr is None:
+                    irr = np.zeros((len(lit),) + shape, np.float32)
+                    pair.append(irr)
+                _, blocks = tr.view_blocks(f, k, lit, out=irr)
+                if R == 0:
+                    for job in [pool.submit(b) for b in blocks]:
+                        job.result()
+                    add(k, self.blur(irr, lit, size=(h, w)))
+                    continue
+                self.blur.prepare(lit, shape)        # the kernels' spectra, before the threads
+                jobs = [(False, b) for b in blocks]
+                if due is not None:
+                    # The last view's blur after the first block of rows and after the
+                    # second: each thread starts on a different kind of work.
+                    for i, half in enumerate(blur(*due)):
+                        jobs.insert(2 * i + 1, (True, half))
+                running = [(is_blur, pool.submit(job)) for is_blur, job in jobs]
+                if due is not None:
+                    add(due[0], self.blur.image([r.result() for b, r in running if b], lit,
+                                                size(due[0])))
+                for _, r in running:
+                    r.result()
+                due = (k, irr)
+            if due is not None and R > 0:
+                spectra = [pool.submit(half) for half in blur(*due)]
+                add(due[0], self.blur.image([r.result() for r in spectra], lit, size(due[0])))
+            for key in set(buffers) - used:       # only the last frame's sizes are kept
+                del buffers[key]
         # Blur with zero padding leaves round-off around zero; charge is never negative.
         np.maximum(total, 0.0, out=total)
         return total
+
+    @contextmanager
+    def _workspace(self):
+        """The blurs' padded images kept from the last frame, {(bands, h, w, shape): [images]};
+        a frame computed at the same time on this model (another thread) gets none."""
+        if not self._lock.acquire(blocking=False):
+            yield {}
+            return
+        try:
+            yield self._buffers
+        finally:
+            self._lock.release()
 
 
 def simulate_frame(design, cube, wavelengths, *, direct: bool = False, spp: int | None = None,

@@ -181,6 +181,12 @@ class BlurredSum:
             return h, w
         return _fast_even(h + 2 * R), _fast_even(w + 2 * R)
 
+    def prepare(self, bands, shape) -> None:
+        """Each band's kernel spectrum for transforms of ``shape``, computed once and kept
+        (before threads take :meth:`spectrum`, which would each compute the missing ones)."""
+        for l in bands:
+            self._kernel_ccs(int(l), tuple(shape))
+
     def _kernel_ccs(self, l, shape):
         key = (l, shape)
         if key not in self._fk:
@@ -207,51 +213,67 @@ class BlurredSum:
         the (h, w) images in its top-left corner and zeros elsewhere, transformed as they are
         (a caller that integrates straight into such a buffer spares a copy of every band).
 
-        The bands are split between two threads in a fixed way (halves) and their sums added
-        in a fixed order, so the result does not depend on which thread finishes first, nor on
-        the number of cores."""
-        import cv2
-
+        The bands are split between two threads in a fixed way (:func:`halves`) and their
+        spectra added in a fixed order (:meth:`spectrum`, then :meth:`image`), so the result
+        does not depend on which thread finishes first, nor on the number of cores."""
         bands = [int(l) for l in bands]
         h, w = images.shape[1:] if size is None else (int(size[0]), int(size[1]))
-        R = self.reach(bands)
-        if R == 0:
+        if self.reach(bands) == 0:
             out = np.zeros((h, w), np.float32)
             for i, l in enumerate(bands):
                 out += images[i, :h, :w] * self.scales[l]
             return out
         shape = self.shape(h, w, bands)
-        padded = images.shape[1:] == shape
-        if size is not None and not padded:
+        if size is not None and images.shape[1:] != shape:
             raise ValueError(f"images of size {tuple(size)} must come padded to {shape}")
-        fk = [self._kernel_ccs(l, shape) for l in bands]     # before the threads
+        self.prepare(bands, shape)     # before the threads
+        parts = _by_halves(lambda idx: self.spectrum(images, bands, idx, (h, w)), len(bands))
+        return self.image(parts, bands, (h, w))
 
-        def half(idx):
-            acc = None
-            term = np.empty(shape, np.float32)
-            pad = None if padded else np.zeros(shape, np.float32)
-            for i in idx:
-                if padded:
-                    src = images[i]
-                else:
-                    pad[:h, :w] = images[i]
-                    src = pad
-                if acc is None:
-                    acc = cv2.dft(src)
-                    acc *= fk[i]
-                else:
-                    cv2.dft(src, dst=term)
-                    _multiply_add(acc, term, fk[i])
-            return acc
+    def spectrum(self, images, bands, part, size):
+        r"""The weighted spectra of the images ``part`` (indices into ``bands``) summed,
+        :math:`\sum_{i \in \text{part}} s_l \hat K_l\, \mathcal F(E_i)` in OpenCV's packed
+        layout (:meth:`shape`), or None for no images; ``images`` as in :meth:`__call__`
+        (padded or not).  The blurred sum is :meth:`image` of such parts: a caller may compute
+        them on threads of its own, e.g. while it integrates the next view."""
+        import cv2
 
-        parts = [p for p in _by_halves(half, len(bands)) if p is not None]
+        h, w = int(size[0]), int(size[1])
+        shape = self.shape(h, w, bands)
+        padded = images.shape[1:] == shape
+        acc = None
+        term = np.empty(shape, np.float32)
+        pad = None if padded else np.zeros(shape, np.float32)
+        for i in part:
+            if padded:
+                src = images[i]
+            else:
+                pad[:h, :w] = images[i]
+                src = pad
+            fk = self._kernel_ccs(bands[i], shape)
+            if acc is None:
+                acc = cv2.dft(src)
+                acc *= fk
+            else:
+                cv2.dft(src, dst=term)
+                _multiply_add(acc, term, fk)
+        return acc
+
+    def image(self, parts, bands, size) -> np.ndarray:
+        """:math:`S` (h + 2R, w + 2R) float32 from :meth:`spectrum`'s ``parts`` (added in their
+        order; None for an empty part): one inverse transform, rolled back by the reach."""
+        import cv2
+
+        h, w = int(size[0]), int(size[1])
+        R = self.reach(bands)
+        parts = [p for p in parts if p is not None]
         total = parts[0]
         for p in parts[1:]:
             total += p
         full = cv2.dft(total, flags=cv2.DFT_INVERSE | cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
         # The kernels are centred on the origin: the blur's first R rows and columns wrapped
         # to the far end.
-        S0, S1 = shape
+        S0, S1 = full.shape
         out = np.empty((h + 2 * R, w + 2 * R), np.float32)
         rows = ((slice(R, None), slice(0, h + R)), (slice(0, R), slice(S0 - R, S0)))
         cols = ((slice(R, None), slice(0, w + R)), (slice(0, R), slice(S1 - R, S1)))
@@ -311,11 +333,16 @@ def _by_halves(fn, n: int) -> list:
     (``tests/test_layout.py``)."""
     from concurrent.futures import ThreadPoolExecutor
 
-    halves = [range(0, (n + 1) // 2), range((n + 1) // 2, n)]
     if n > 1 and cores() > 1:
         with ThreadPoolExecutor(2) as pool:
-            return list(pool.map(fn, halves))
-    return [fn(h) for h in halves]
+            return list(pool.map(fn, halves(n)))
+    return [fn(h) for h in halves(n)]
+
+
+def halves(n: int) -> list[range]:
+    """``range(n)`` cut in two, the first half the longer: how the blurs split a view's
+    bands between two threads, the same on any number of cores."""
+    return [range(0, (n + 1) // 2), range((n + 1) // 2, n)]
 
 
 def _fast_even(n: int) -> int:

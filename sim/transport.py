@@ -146,6 +146,15 @@ class Transport:
 
         ``out``, when given, may be larger than (La, h, w): its top-left (h, w) of each band is
         written and the rest left as it is (a zero-padded buffer for the blurs' transforms)."""
+        out, blocks = self.view_blocks(f, k, bands, out)
+        each(lambda block: block(), blocks)
+        return out
+
+    def view_blocks(self, f, k: int, bands=None, out=None):
+        """:meth:`view_bands` as work to run: ``(out, blocks)``, ``blocks`` a list of calls
+        without arguments, each integrating one block of rows into ``out`` (they write
+        disjoint rows: any order, any threads).  For a caller that schedules other work
+        between them (:meth:`sim.frame.FrameModel.electrons` blurs the view before)."""
         from sim.pixel_integral import band_mean
         from sim.view_integral import view_forward
 
@@ -171,10 +180,12 @@ class Transport:
                              f"got {out.dtype} {out.shape}")
         part, bucket, tau = self.partition(k, f.shape[1]), self.buckets(k, f.shape[1]), \
             self.throughput(k)
-        each(lambda rows: view_forward(f, self.code, self.views[k], self.maps.relay[k], part,
-                                       bucket, geom, cxn, cyl, nodes, bands, tau, out, rows),
-             row_blocks(geom.h, cores()))
-        return out
+
+        def block(rows):
+            return lambda: view_forward(f, self.code, self.views[k], self.maps.relay[k], part,
+                                        bucket, geom, cxn, cyl, nodes, bands, tau, out, rows)
+
+        return out, [block(rows) for rows in row_blocks(geom.h, cores())]
 
     def view_band(self, f, k: int, l: int, out=None) -> np.ndarray:
         """Irradiance (h, w) of view index ``k`` in band ``l`` from the band image ``f`` (H, W)."""

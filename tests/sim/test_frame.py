@@ -168,3 +168,56 @@ def test_electrons_equal_the_whole_sensor_sum(shared_cache, diffraction):
     for r0, c0, h, w in rects:
         lit[max(r0 - reach, 0):r0 + h + reach, max(c0 - reach, 0):c0 + w + reach] = True
     assert not got[~lit].any()
+
+
+@pytest.mark.mitsuba
+def test_views_overlapped_give_the_frame_of_one_view_after_another(shared_cache, monkeypatch):
+    """``FrameModel.electrons`` blurs each view while the next is integrated, keeps its padded
+    images for the next frame and lets a second thread's frame take fresh ones: none of it may
+    change a bit of the frame against integrating, blurring and adding one view after another
+    — on two cores or one, for a frame after a frame of other bands or another scene, and for
+    two frames computed at once on one model."""
+    pytest.importorskip("mitsuba")
+    from concurrent.futures import ThreadPoolExecutor
+
+    import recon.kernels
+    import sim.transport
+    from sim.design import get_design
+    from sim.frame import FrameModel
+
+    d = get_design("small").replace(views=tuple(range(9)))
+    wl = d.wavelengths[[1, 3, 6, 8, 9, 10]]
+    model = FrameModel(d, wl, trace_seed=1)
+    rng = np.random.default_rng(4)
+    v = 2 * d.view_size_px
+    cube = rng.random((v, v, wl.size)).astype(np.float32)
+    cube[:, :, 2] = 0.0
+    other = rng.random((v, v, wl.size)).astype(np.float32)
+    band = np.zeros_like(cube)
+    band[:, :, 4] = cube[:, :, 4]
+
+    def one_after_another(c):
+        tr = model.transport
+        lit = [l for l in range(wl.size) if c[:, :, l].max() > 0]
+        f = np.ascontiguousarray(c[:, :, lit])
+        R = model.blur.reach(lit)
+        want = np.zeros(tr.sensor, np.float32)
+        for k, rect in enumerate(tr.maps.rects):
+            r0, c0, h, w = (int(x) for x in rect)
+            part = model.blur(tr.view_bands(f, k, lit), lit)
+            a0, b0 = max(r0 - R, 0), max(c0 - R, 0)
+            a1, b1 = min(r0 + h + R, tr.sensor[0]), min(c0 + w + R, tr.sensor[1])
+            want[a0:a1, b0:b1] += part[a0 - (r0 - R):a1 - (r0 - R), b0 - (c0 - R):b1 - (c0 - R)]
+        return np.maximum(want, 0.0)
+
+    want = {id(c): one_after_another(c) for c in (cube, other, band)}
+    assert want[id(cube)].max() > 0
+    for c in (cube, band, cube, other, cube):       # buffers kept, dropped, made anew
+        np.testing.assert_array_equal(model.electrons(c), want[id(c)])
+    with ThreadPoolExecutor(2) as pool:
+        both = list(pool.map(model.electrons, (cube, other)))
+    np.testing.assert_array_equal(both[0], want[id(cube)])
+    np.testing.assert_array_equal(both[1], want[id(other)])
+    for module in (recon.kernels, sim.transport, sensor):
+        monkeypatch.setattr(module, "cores", lambda: 1)
+    np.testing.assert_array_equal(model.electrons(cube), want[id(cube)])
