@@ -152,7 +152,7 @@ class FrameModel:
         cores.  Dark bands are skipped: a band-pass capture lights one.
 
         The zero-padded images the blurs transform (two per view size: one integrated while
-        the other is blurred; 96 MiB each on ``paper``) are kept for the next frame.
+        the other is blurred; 91 MiB each on ``paper``) are kept for the next frame.
         """
         from concurrent.futures import ThreadPoolExecutor
         from functools import partial
