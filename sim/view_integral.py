@@ -107,6 +107,38 @@ def _table_ggg(T, l, p, d):
             T[l, p, 3] + d * (T[l, p, 2] + d * (0.5 * T[l, p, 1] + d * T[l, p, 0] * SIXTH)))
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _span(YE0, YE1, l, c):
+    """Band ``l``'s footprint bounds (low, high) at pixel ``c`` from its two edges' bounds."""
+    a = YE0[l, c]
+    b = YE1[l, c]
+    return (a if a < b else b), (b if a < b else a)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _extremes(YE, mn, mx):
+    """(min, max) of an edge row's bounds ``YE`` (L, w), column by column over the bands
+    first (into the scratch ``mn``, ``mx``), then over the columns: one chain of comparisons
+    a row, not one a band (a chain runs at its latency).  Selects, not min/max: Numba's
+    NaN-aware min and max keep the loop from vectorising (the bounds are polynomials of
+    finite coefficients: never NaN)."""
+    L, w = YE.shape
+    for c in range(w):
+        mn[c] = YE[0, c]
+        mx[c] = YE[0, c]
+    for l in range(1, L):
+        for c in range(w):
+            v = YE[l, c]
+            mn[c] = v if v < mn[c] else mn[c]
+            mx[c] = v if v > mx[c] else mx[c]
+    lo = np.inf
+    hi = -np.inf
+    for c in range(w):
+        lo = min(lo, mn[c])
+        hi = max(hi, mx[c])
+    return lo, hi
+
+
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=set(CONTRACT))
 def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, pre, pceT,
             pccT, cxn, cyl, boff, bnodes, ends, bands, tau, out, r_start, r_end, pmax, stats):
@@ -116,13 +148,13 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
     nint = mcol.shape[0]
     ay, by = relay[2], relay[3]
     X = np.empty((N, w + 1))
-    Y0 = np.empty((L, w))
-    Y1 = np.empty((L, w))
     YE0 = np.empty((L, w))
     YE1 = np.empty((L, w))
     XC = np.empty(w)
     ymn = np.empty(w)
     ymx = np.empty(w)
+    e_lo = 0.0      # the extremes of the upper pixel edge's bounds (the row above's lower)
+    e_hi = 0.0
     nk = int((xb[nint] - xb[0]) / KNOT) + 3
     yk0 = np.empty((nk, L))
     yk1 = np.empty((nk, L))
@@ -170,36 +202,19 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
         # the pixel centres, and the row's y gaps (shared by every band and pixel).
         for j in range(N):
             _poly_row(prc[r], cxn[j], pceT, X[j])
-        ylo = np.inf
-        yhi = -np.inf
-        # A row's lower pixel edge is the next row's upper one: each edge's bounds are
-        # evaluated once per block of rows.
+        # A row's lower pixel edge is the next row's upper one: each edge's bounds, and
+        # their extremes, are evaluated once per block of rows.
         if r == r_start:
             for l in range(L):
                 _poly_row(pre[r], cyl[l], pccT, YE1[l])
+            e_lo, e_hi = _extremes(YE1, ymn, ymx)
         YE0, YE1 = YE1, YE0
-        # The row's y extremes column by column over the bands first, then over the columns:
-        # one chain of min/max a row instead of one a band (a chain runs at its latency).
-        # Selects, not min/max: Numba's NaN-aware min and max keep the loop from vectorising
-        # (the bounds are polynomials of finite coefficients: never NaN).
         for l in range(L):
             _poly_row(pre[r + 1], cyl[l], pccT, YE1[l])
-            for c in range(w):
-                a = YE0[l, c]
-                b = YE1[l, c]
-                lo_ = a if a < b else b
-                hi_ = b if a < b else a
-                Y0[l, c] = lo_
-                Y1[l, c] = hi_
-                if l == 0:
-                    ymn[c] = lo_
-                    ymx[c] = hi_
-                else:
-                    ymn[c] = lo_ if lo_ < ymn[c] else ymn[c]
-                    ymx[c] = hi_ if hi_ > ymx[c] else ymx[c]
-        for c in range(w):
-            ylo = min(ylo, ymn[c])
-            yhi = max(yhi, ymx[c])
+        n_lo, n_hi = _extremes(YE1, ymn, ymx)
+        ylo = min(e_lo, n_lo)
+        yhi = max(e_hi, n_hi)
+        e_lo, e_hi = n_lo, n_hi
         ng = _row_gaps(ylo, yhi, ay, by, H, n_mask, pmr, ptr_, bounds)
         if ng > 0 and bounds[ng] < yhi:
             stats[1] += 1             # more gaps than the scratch holds (a caller's error)
@@ -236,8 +251,10 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
                     c -= one
                 c1 = min(c + one, wm1)
                 t = (xq - XC[c]) / (XC[c1] - XC[c]) if c1 > c else 0.0
-                yk0[q, l] = Y0[l, c] + t * (Y0[l, c1] - Y0[l, c])
-                yk1[q, l] = Y1[l, c] + t * (Y1[l, c1] - Y1[l, c])
+                lo0, hi0 = _span(YE0, YE1, l, c)
+                lo1, hi1 = _span(YE0, YE1, l, c1)
+                yk0[q, l] = lo0 + t * (lo1 - lo0)
+                yk1[q, l] = hi0 + t * (hi1 - hi0)
             xc_first[l] = XC[0]
             xc_last[l] = XC[w - 1]
         xf_max = -np.inf
@@ -249,10 +266,12 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
         for l in range(L):
             xf_max = max(xf_max, xc_first[l])
             xl_min = min(xl_min, xc_last[l])
-            e0lo = min(e0lo, Y0[l, 0])
-            e0hi = max(e0hi, Y1[l, 0])
-            e1lo = min(e1lo, Y0[l, w - 1])
-            e1hi = max(e1hi, Y1[l, w - 1])
+            lo0, hi0 = _span(YE0, YE1, l, 0)
+            lo1, hi1 = _span(YE0, YE1, l, w - 1)
+            e0lo = min(e0lo, lo0)
+            e0hi = max(e0hi, hi0)
+            e1lo = min(e1lo, lo1)
+            e1hi = max(e1hi, hi1)
         # Each knot's y extremes over the bands, then the gaps met between two knots.  Near
         # the row's ends every band's end-pixel bounds are included, not only those of the
         # bands whose end lies there: a gap too many adds zeros, not a different sum.
@@ -314,11 +333,9 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
                         # Beyond a band's end pixel centres its bounds are the end pixel's.
                         for l in range(L):
                             if xm <= xc_first[l]:
-                                y0[l] = Y0[l, 0]
-                                y1[l] = Y1[l, 0]
+                                y0[l], y1[l] = _span(YE0, YE1, l, 0)
                             if xm >= xc_last[l]:
-                                y0[l] = Y0[l, w - 1]
-                                y1[l] = Y1[l, w - 1]
+                                y0[l], y1[l] = _span(YE0, YE1, l, w - 1)
                     for l in range(L):
                         inv_h[l] = 1.0 / (y1[l] - y0[l]) if y1[l] > y0[l] else 0.0
                     for p in range(gk_lo[q], gk_hi[q]):
