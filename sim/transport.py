@@ -154,7 +154,7 @@ class Transport:
         """:meth:`view_bands` as work to run: ``(out, blocks)``, ``blocks`` a list of calls
         without arguments, each integrating one block of rows into ``out`` (they write
         disjoint rows: any order, any threads).  For a caller that schedules other work
-        between them (:meth:`sim.frame.FrameModel.electrons` blurs the view before)."""
+        between them (:meth:`sim.frame.FrameModel.electrons` blurs the previous view there)."""
         from sim.pixel_integral import band_mean
         from sim.view_integral import view_forward
 
