@@ -217,8 +217,8 @@ class FrameModel:
                 self.blur.prepare(lit, shape)        # the kernels' spectra, before the threads
                 jobs = [(False, b) for b in blocks]
                 if due is not None:
-                    # The last view's blur after the first block of rows and after the
-                    # second: each thread starts on a different kind of work.
+                    # The previous view's blur after the first block of rows and after
+                    # the second: each thread starts on a different kind of work.
                     for i, half in enumerate(blur(*due)):
                         jobs.insert(2 * i + 1, (True, half))
                 running = [(is_blur, pool.submit(job)) for is_blur, job in jobs]
