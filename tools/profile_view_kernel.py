@@ -53,35 +53,26 @@ def run_kernel(preset: str, view: int, scale: int, seconds: float, info: Path | 
     from sim import transport, view_integral
     from sim.design import get_design
     from sim.frame import FrameModel
-    from sim.pixel_integral import band_mean
 
     d = get_design(preset)
     L = d.wavelengths.size
     if n_bands is not None and not 1 <= n_bands <= L:
         sys.exit(f"--bands must be between 1 and {L}, got {n_bands}")
+    if view not in d.views:
+        sys.exit(f"--view must be one of the design's views {list(d.views)}, got {view}")
     tr = FrameModel(d, trace_seed=transport.SEEDS["scene"]).transport
     v = d.view_size_px
+    bands = list(range(L if n_bands is None else n_bands))
     cube, _ = get_scene("natural", (scale * v, scale * v), d.wavelengths)
-    f = np.ascontiguousarray(cube, np.float32)
-    bands = list(range(d.wavelengths.size if n_bands is None else n_bands))
-    cube = cube[:, :, bands]
+    f = np.ascontiguousarray(cube[:, :, bands], np.float32)
     tr.prepare(bands, f.shape[1])
-    k = tr.views.index(view) if view in tr.views else 0
-    used = sorted({int(j) for l in bands for j in tr.band_nodes[l]})
-    where = {j: i for i, j in enumerate(used)}
-    mask = tr.maps.mask[k]
-    cxn = np.ascontiguousarray(mask[used, 0], np.float64)
-    cyl = np.stack([band_mean(mask[:, 1], tr.band_nodes[l]) for l in bands])
-    nodes = [np.array([where[int(j)] for j in tr.band_nodes[l]], np.int64) for l in bands]
-    geom = tr.geometry(k, bands[0])
-    part, bucket, tau = tr.partition(k, f.shape[1]), tr.buckets(k, f.shape[1]), tr.throughput(k)
-    out = np.zeros((len(bands), geom.h, geom.w), np.float32)
-    blocks = transport.row_blocks(geom.h, 2)
+    k = tr.views.index(view)
+    # The blocks of rows a frame's threads take (Transport.view_blocks), one after another.
+    _, blocks = tr.view_blocks(f, k, bands)
 
     def once():
-        for rows in blocks:     # the blocks a frame's threads take, one after another here
-            view_integral.view_forward(f, tr.code, tr.views[k], tr.maps.relay[k], part, bucket,
-                                       geom, cxn, cyl, nodes, bands, tau, out, rows)
+        for block in blocks:
+            block()
 
     once()
     if info is not None:
