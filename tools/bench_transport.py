@@ -11,8 +11,9 @@ For each preset, from an empty cache folder:
   (every band of a view in one pass, as frames take them, and band by band, as the exact
   operator does) and with the sensor model (Airy blur, photo-electrons), and the exact
   operator's forward and adjoint on the same maps (one solver iteration of an "oracle"
-  reconstruction); the frame again on one core, and how much vector arithmetic the machine's
-  second core adds (:func:`core_scaling`: a 2-core target means little on two hyperthreads);
+  reconstruction); the frame again on one core, split into its views' pixel integrals and
+  blurs (:func:`frame_parts`), and how much vector arithmetic the machine's second core adds
+  (:func:`core_scaling`: a 2-core target means little on two hyperthreads);
 - **convergence**: in windows of the centre view and of the left view's vignetted outer
   columns, the frame's mean photo-electrons at the default exposure (brightest pixel at 80 %
   of the full well) against Mitsuba's path tracer (``kaleidospec_path``, stratified) at a
@@ -32,7 +33,7 @@ Usage::
 
     python3 tools/bench_transport.py                     # both presets (~10 min)
     python3 tools/bench_transport.py --preset small --spp 256,1024,4096
-    python3 tools/bench_transport.py --preset paper --frames-only   # build, frame and operator times
+    python3 tools/bench_transport.py --preset paper --frames-only   # build, frames, operator
     python3 tools/bench_transport.py --spawn
 """
 
@@ -106,6 +107,33 @@ def on_one_core(fn):
         return fn()
     finally:
         os.sched_setaffinity(0, cpus)
+
+
+def frame_parts(model, cube):
+    """One core's time for a frame's parts: each view's pixel integrals (every band in one
+    pass, into the zero-padded images the blurs transform) and each view's blur (its bands'
+    transforms, products and one inverse), best of three, with the process held to one CPU
+    (:func:`on_one_core`); ``None`` where the platform cannot pin.  What a frame takes
+    beyond their sum: the scene's check, the views added to the sensor, the threads'
+    hand-overs, and the caches a blur evicts between blocks of rows."""
+    tr = model.transport
+    # The bands a frame integrates: the lit ones (FrameModel.electrons).
+    lit = [int(l) for l in np.flatnonzero(cube.max(axis=(0, 1)) > 0)]
+    f = np.ascontiguousarray(cube[:, :, lit], np.float32)
+    tr.prepare(lit, f.shape[1])
+
+    def parts():
+        integrals, blurs = [], []
+        for k in range(len(tr.views)):
+            h, w = int(tr.maps.rects[k][2]), int(tr.maps.rects[k][3])
+            shape = model.blur.shape(h, w, lit)
+            buf = np.zeros((len(lit),) + shape, np.float32)
+            model.blur.prepare(lit, shape)
+            integrals.append(best_of(lambda: tr.view_bands(f, k, lit, out=buf))[1])
+            blurs.append(best_of(lambda: model.blur(buf, lit, size=(h, w)))[1])
+        return integrals, blurs
+
+    return on_one_core(parts)
 
 
 def windows(d, size):
@@ -221,6 +249,10 @@ def bench(preset, counts, size, cache, frames_only=False):
         if one is not None:
             print(f"  the same frame on one core: {one:.2f} s (the second core gives "
                   f"{one / best['frame']:.2f}x)")
+            integrals, blurs = frame_parts(model, cube)
+            print(f"  its parts on one core: pixel integrals {sum(integrals):.2f} s (views "
+                  f"{' / '.join(f'{t:.3f}' for t in integrals)}), blurs {sum(blurs):.2f} s, "
+                  f"the rest {one - sum(integrals) - sum(blurs):.2f} s")
     # The exact operator (the "oracle" reconstructions) on the same maps: one application each
     # way is one solver iteration's optics.
     from sim.oracle import ExactOperator
