@@ -145,8 +145,9 @@ class FrameModel:
         BlurredSum`), added over the view widened by the blur's reach.  The views overlap: the
         threads take the previous view's blur (its bands' spectra, in two fixed halves) between
         the first blocks of rows of the next, so that a transform, bound by memory, runs beside
-        an integral, bound by arithmetic, and no thread waits between the two; this thread adds
-        each view's blur to the frame as its halves come in.  The blur is linear, so the views'
+        an integral, bound by arithmetic, and no thread waits between the two, nor at a view's
+        end (a view's blur waits for its last blocks instead); this thread adds each view's
+        blur to the frame as its halves come in.  The blur is linear, so the views'
         blurs add up to the blur of the whole sensor; every sum is taken in a fixed order, so a
         frame is the same to the bit whichever thread finishes first and on any number of
         cores.  Dark bands are skipped: a band-pass capture lights one.
@@ -188,12 +189,18 @@ class FrameModel:
             o0, p0 = a0 - (r0 - R), b0 - (c0 - R)
             total[a0:a1, b0:b1] += part[o0:o0 + a1 - a0, p0:p0 + b1 - b0]
 
-        def blur(k, images):
-            return [partial(self.blur.spectrum, images, lit, half, size(k))
-                    for half in halves(len(lit))]
+        def blur(k, images, rows):
+            def half(part):
+                # A view's blur reads its images once their blocks of rows are done; they
+                # were queued before it, so another thread is finishing them, if any.
+                for r in rows:
+                    r.result()
+                return self.blur.spectrum(images, lit, part, size(k))
+
+            return [partial(half, part) for part in halves(len(lit))]
 
         with self._workspace() as buffers, ThreadPoolExecutor(cores()) as pool:
-            due = None      # (view, its images) whose blur the threads take next
+            due = None      # (view, its images, their blocks) whose blur the threads take next
             used = set()
             for k in range(len(tr.maps.rects)):
                 h, w = size(k)
@@ -223,11 +230,12 @@ class FrameModel:
                         jobs.insert(2 * i + 1, (True, half))
                 running = [(is_blur, pool.submit(job)) for is_blur, job in jobs]
                 if due is not None:
+                    # Once the previous view's blur is in, its buffer is free for the next
+                    # view: no thread waits for this view's last block before taking the
+                    # next view's rows.
                     add(due[0], self.blur.image([r.result() for b, r in running if b], lit,
                                                 size(due[0])))
-                for _, r in running:
-                    r.result()
-                due = (k, irr)
+                due = (k, irr, [r for b, r in running if not b])
             if due is not None and R > 0:
                 spectra = [pool.submit(half) for half in blur(*due)]
                 add(due[0], self.blur.image([r.result() for r in spectra], lit, size(due[0])))

@@ -221,3 +221,43 @@ def test_views_overlapped_give_the_frame_of_one_view_after_another(shared_cache,
     for module in (recon.kernels, sim.transport, sensor):
         monkeypatch.setattr(module, "cores", lambda: 1)
     np.testing.assert_array_equal(model.electrons(cube), want[id(cube)])
+
+
+def test_an_error_in_a_block_of_rows_reaches_the_caller(shared_cache, monkeypatch):
+    """The threads go on to the next view's rows without waiting for a view's last block, and
+    the view's blur waits for it instead: an error in any view's block of rows (the first
+    view, a middle one, the last) must still reach the caller of ``FrameModel.electrons``,
+    on two cores and on one, not leave a frame without it or a thread waiting for ever."""
+    pytest.importorskip("mitsuba")
+    import recon.kernels
+    import sim.transport
+    from sim.design import get_design
+    from sim.frame import FrameModel
+
+    d = get_design("small")
+    wl = d.wavelengths[[2, 5, 7]]
+    model = FrameModel(d, wl, trace_seed=1)
+    tr = model.transport
+    v = 2 * d.view_size_px
+    cube = np.random.default_rng(5).random((v, v, wl.size)).astype(np.float32)
+    view_blocks = tr.view_blocks
+    n = len(tr.maps.rects)
+    for one_core in (False, True):
+        if one_core:
+            for module in (recon.kernels, sim.transport, sensor):
+                monkeypatch.setattr(module, "cores", lambda: 1)
+        for bad in (0, n // 2, n - 1):
+            def failing(f, k, bands=None, out=None, bad=bad):
+                out, blocks = view_blocks(f, k, bands, out)
+                if k != bad:
+                    return out, blocks
+
+                def fail():
+                    raise RuntimeError(f"a block of view {k}")
+                return out, blocks[:-1] + [fail] + blocks[-1:]
+
+            monkeypatch.setattr(tr, "view_blocks", failing)
+            with pytest.raises(RuntimeError, match=f"a block of view {bad}$"):
+                model.electrons(cube)
+        monkeypatch.setattr(tr, "view_blocks", view_blocks)
+        assert model.electrons(cube).max() > 0        # the model still makes frames
