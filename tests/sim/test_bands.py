@@ -46,3 +46,30 @@ def test_negative_and_out_of_range_radiance_is_refused():
         check_cube(SMALL, cube, wl)
     with pytest.raises(InputError, match="real numbers"):
         check_cube(SMALL, np.ones((3, 3, wl.size), np.complex64), wl)
+
+
+def test_a_large_cube_is_checked_on_two_threads_alike(monkeypatch):
+    """A cube of 4M values or more is scanned in two halves of its rows on two threads: the
+    peaks are still each band's maximum, and a bad value in either half, or on the row where
+    the halves meet, is still refused, as on one thread."""
+    import recon.kernels
+
+    wl = SMALL.wavelengths
+    rng = np.random.default_rng(1)
+    n = 640                                             # 640² × 11 bands: 4.5M values
+    cube = rng.random((n, n, wl.size)).astype(np.float32)
+    cube[n // 2 + 7, 3, 4] = 2.0                        # band 4's peak in the second half
+    cube[:, :, 6] = 0.0
+    for one in (False, True):
+        if one:
+            monkeypatch.setattr(recon.kernels, "cores", lambda: 1)
+        _, _, peaks = check_cube(SMALL, cube, wl, peaks=True)
+        np.testing.assert_array_equal(peaks, cube.max(axis=(0, 1)))
+        assert peaks[4] == 2.0 and peaks[6] == 0.0
+        for row in (0, n // 2 - 1, n // 2, n - 1):
+            for value, what in ((np.nan, "non-finite"), (-np.inf, "non-finite"),
+                                (-0.5, "negative")):
+                bad = cube.copy()
+                bad[row, n // 3, 9] = value
+                with pytest.raises(InputError, match=what):
+                    check_cube(SMALL, bad, wl)
