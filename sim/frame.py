@@ -26,8 +26,8 @@ import numpy as np
 
 from recon.errors import InputError
 
-__all__ = ["SCENE_OVERSAMPLE", "scene_grid", "area_weights", "ground_truth", "FrameModel", "simulate_frame", "exposure",
-           "frame_metadata", "write_frame"]
+__all__ = ["SCENE_OVERSAMPLE", "scene_grid", "area_weights", "ground_truth", "FrameModel",
+           "simulate_frame", "exposure", "frame_metadata", "write_frame"]
 
 
 #: Built-in scenes are rendered at this many times the reconstruction grid's resolution, so a
