@@ -31,7 +31,7 @@ import numpy as np
 from numba import njit
 
 from recon.errors import InputError
-from recon.kernels import cores
+from recon.kernels import each
 
 __all__ = [
     "QE_CURVES",
@@ -326,17 +326,10 @@ class BlurredSum:
 
 
 def _by_halves(fn, n: int) -> list:
-    """``fn`` of the first and second half of ``range(n)``, in that order: a fixed split, so a
-    sum of the results does not depend on which finishes first; on two threads where there are
-    two cores and two bands (OpenCV's transforms release the GIL).  Not
-    :func:`sim.transport.each`: importing it here would close an import cycle
-    (``tests/test_layout.py``)."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    if n > 1 and cores() > 1:
-        with ThreadPoolExecutor(2) as pool:
-            return list(pool.map(fn, halves(n)))
-    return [fn(h) for h in halves(n)]
+    """``fn`` of the first and second half of ``range(n)`` (:func:`halves`), in that order: a
+    fixed split, so a sum of the results does not depend on which finishes first; on two
+    threads where there are two cores and two bands (:func:`recon.kernels.each`)."""
+    return each(fn, halves(n)) if n > 1 else [fn(h) for h in halves(n)]
 
 
 def halves(n: int) -> list[range]:

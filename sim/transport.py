@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from recon.errors import InputError
-from recon.kernels import cores
+from recon.kernels import cores, each
 from sim.bands import band_intervals
 
 __all__ = ["Transport", "SEEDS", "cache_dir", "build_transport", "load_or_build",
@@ -251,17 +251,6 @@ def row_blocks(h: int, workers: int, rows: int = 48) -> list[tuple[int, int]]:
     n = max(1, min(n, h))
     cuts = [h * i // n for i in range(n + 1)]
     return [(a, b) for a, b in zip(cuts[:-1], cuts[1:]) if b > a]
-
-
-def each(fn, items):
-    """``fn(item)`` for every item, on a thread per CPU the process may use
-    (:func:`recon.kernels.cores`; the kernels release the GIL)."""
-    items = list(items)
-    workers = min(len(items), cores())
-    if workers > 1:
-        with ThreadPoolExecutor(workers) as pool:
-            return list(pool.map(fn, items))
-    return [fn(i) for i in items]
 
 
 def ordered_sum(fn, items, out, add=None):

@@ -27,7 +27,7 @@ import threading
 
 import numpy as np
 
-__all__ = ["cores", "enabled", "usable", "numpy_only", "threads", "jit"]
+__all__ = ["cores", "each", "enabled", "usable", "numpy_only", "threads", "jit"]
 
 _STATE = threading.local()
 _NUMBA: list = []  # [numba module or None] once looked up: importing it costs ~0.2 s
@@ -67,6 +67,20 @@ def cores() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except (AttributeError, OSError):  # pragma: no cover - systems without affinity sets
         return max(1, os.cpu_count() or 1)
+
+
+def each(fn, items) -> list:
+    """``fn(item)`` for every item, in the items' order, on a thread per CPU the process may
+    use (:func:`cores`; for work that releases the GIL: Numba kernels, OpenCV's transforms),
+    or on this thread where there is one CPU or one item."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    items = list(items)
+    workers = min(len(items), cores())
+    if workers > 1:
+        with ThreadPoolExecutor(workers) as pool:
+            return list(pool.map(fn, items))
+    return [fn(i) for i in items]
 
 
 def enabled() -> bool:

@@ -218,7 +218,7 @@ def test_views_overlapped_give_the_frame_of_one_view_after_another(shared_cache,
         both = list(pool.map(model.electrons, (cube, other)))
     np.testing.assert_array_equal(both[0], want[id(cube)])
     np.testing.assert_array_equal(both[1], want[id(other)])
-    for module in (recon.kernels, sim.transport, sensor):
+    for module in (recon.kernels, sim.transport):
         monkeypatch.setattr(module, "cores", lambda: 1)
     np.testing.assert_array_equal(model.electrons(cube), want[id(cube)])
 
@@ -244,7 +244,7 @@ def test_an_error_in_a_block_of_rows_reaches_the_caller(shared_cache, monkeypatc
     n = len(tr.maps.rects)
     for one_core in (False, True):
         if one_core:
-            for module in (recon.kernels, sim.transport, sensor):
+            for module in (recon.kernels, sim.transport):
                 monkeypatch.setattr(module, "cores", lambda: 1)
         for bad in (0, n // 2, n - 1):
             def failing(f, k, bands=None, out=None, bad=bad):
