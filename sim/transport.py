@@ -86,6 +86,7 @@ class Transport:
         self.build_seconds = float(build_seconds)
         self.path = path
         self._tau, self._geom, self._part, self._buckets = {}, {}, {}, {}
+        self._ordered = {}
 
     @property
     def n_bands(self) -> int:
@@ -127,6 +128,20 @@ class Transport:
             self._part[key] = partition(self.maps.relay[k], int(width), (lo, hi),
                                         self.code.shape[0])
         return self._part[key]
+
+    def edges_ordered(self, k: int) -> bool:
+        """Whether view index ``k``'s pixel edges are in order along every row, at every
+        wavelength node: :math:`x_j(r, e + 1) - x_j(r, e) > 10^{-9}` mask units for every
+        pixel row :math:`r`, edge :math:`e` and node :math:`j` (far above the round-off of
+        the kernels' own evaluation).  Then every edge lies among the pieces its row spans,
+        and :func:`sim.view_integral.view_forward` need not check it row by row."""
+        if k not in self._ordered:
+            geom = self.geometry(k, 0)
+            steps = np.diff(geom.pce, axis=0)
+            self._ordered[k] = all(
+                float((geom.prc @ self.maps.mask[k, j, 0] @ steps.T).min()) > 1e-9
+                for j in range(self.maps.mask.shape[1]))
+        return self._ordered[k]
 
     def buckets(self, k: int, width: int):
         """:func:`sim.view_integral.buckets` of :meth:`partition` ``(k, width)``."""
@@ -180,10 +195,12 @@ class Transport:
                              f"got {out.dtype} {out.shape}")
         part, bucket, tau = self.partition(k, f.shape[1]), self.buckets(k, f.shape[1]), \
             self.throughput(k)
+        ordered = self.edges_ordered(k)
 
         def block(rows):
             return lambda: view_forward(f, self.code, self.views[k], self.maps.relay[k], part,
-                                        bucket, geom, cxn, cyl, nodes, bands, tau, out, rows)
+                                        bucket, geom, cxn, cyl, nodes, bands, tau, out, rows,
+                                        ordered)
 
         return out, [block(rows) for rows in row_blocks(geom.h, cores())]
 
@@ -232,6 +249,7 @@ class Transport:
         for k in range(len(self.views)):
             self.partition(k, width)
             self.throughput(k, 0)
+            self.edges_ordered(k)
 
     def nbytes(self) -> int:
         """Memory of the maps and of the throughput images computed so far."""

@@ -28,8 +28,12 @@ computes those once per row and carries all bands along (the same maths as
    quarter mask unit hold at most three breakpoints, so three comparisons added replace a
    walk whose branches mispredict), in the next rows by stepping from the piece it was in a
    row above (an edge moves by a small fraction of a piece from row to row: the step is
-   almost always none).  Each band then takes its mean of :math:`G` over each panel from
-   :math:`GG` and :math:`GGG` at the panel's ends (:func:`sim.pixel_integral.panel_mean`).
+   almost always none), as the first band that reads the node there reads the table.  Each
+   band then takes its mean of :math:`G` over each panel from :math:`GG` and :math:`GGG` at
+   the panel's ends (:func:`sim.pixel_integral.panel_mean`).  The table is indexed by piece,
+   not from the row's first piece, so an edge's piece is its row of the table: no clamp and
+   no offset an edge, where the edges are in order along the row (every design's are,
+   :meth:`sim.transport.Transport.edges_ordered`; elsewhere each row checks them).
 
 Each row's lower pixel edge is the next row's upper one, so the footprints' y bounds are
 evaluated once per edge in a block of rows, not twice.
@@ -139,9 +143,45 @@ def _extremes(YE, mn, mx):
     return lo, hi
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _locate(X, P, xlim):
+    """Each edge ``X[e]``'s row of the table, ``P[e]``, stepped from the row above's."""
+    one = uint64(1)
+    for e in range(X.shape[0]):
+        x = X[e]
+        u = uint64(P[e])
+        while xlim[u + one] <= x:
+            u += one
+        while xlim[u] > x:
+            u -= one
+        P[e] = np.int64(u)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _within(X, ends, mn, mx, a, b):
+    """Whether every edge ``X[j]`` of the nodes ``ends`` lies in [a, b): column by column
+    into the scratch ``mn``, ``mx`` first, as :func:`_extremes` does."""
+    n = X.shape[1]
+    for e in range(n):
+        mn[e] = X[ends[0], e]
+        mx[e] = X[ends[0], e]
+    for j in ends:
+        for e in range(n):
+            v = X[j, e]
+            mn[e] = v if v < mn[e] else mn[e]
+            mx[e] = v if v > mx[e] else mx[e]
+    lo = np.inf
+    hi = -np.inf
+    for e in range(n):
+        lo = min(lo, mn[e])
+        hi = max(hi, mx[e])
+    return lo >= a and hi < b
+
+
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=set(CONTRACT))
 def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, pre, pceT,
-            pccT, cxn, cyl, boff, bnodes, ends, bands, tau, out, r_start, r_end, pmax, stats):
+            pccT, cxn, cyl, boff, bnodes, ends, bands, tau, out, r_start, r_end, pmax, stats,
+            ordered):
     w = pccT.shape[1]
     N = cxn.shape[0]
     L = cyl.shape[0]
@@ -171,15 +211,24 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
     G = np.zeros(L)
     GG = np.zeros(L)
     GGG = np.zeros(L)
+    # The table's row p + 1 holds piece p's start; row 0 a piece before the partition's.
     T = np.empty((L, nint + 3, 4))
-    xs = np.empty(nint + 3)
+    # Each edge's row of the table (xlim's index of its piece's start).
     PA = np.zeros((N, w + 1), np.int32)
     # The breakpoints between −∞ and +∞: piece p spans [xlim[p + 1], xlim[p + 2]).
     xlim = np.empty(nint + 4)
     xlim[0] = -np.inf
     xlim[1:nint + 2] = xb
     xlim[nint + 2:] = np.inf
-    located = False
+    # The start of each row of the table, finite: a row of zeros before the partition's first
+    # piece is evaluated at a finite offset (inf · 0 would be NaN).
+    xs = xlim.copy()
+    xs[0] = 0.0
+    # The row (of the block) in which each node's edges were last located.
+    stamp = np.full(N, -1, np.int64)
+    counted = False
+    emn = np.empty(w + 1)
+    emx = np.empty(w + 1)
     # Walked indices (a knot's pixel, an edge's piece) are unsigned: Numba tests a signed index
     # for wrap-around (a negative one counts from the end) at every read, and LLVM cannot drop
     # the test for an index it cannot bound.  Unsigned arithmetic stays unsigned only with
@@ -302,8 +351,8 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
             gk_lo[q] = first
             gk_hi[q] = last + 1
         # Stage 1: every band's g on every piece, and its running G, GG and GGG, written
-        # straight into the band-major table that stage 2 reads (T[l, i − lo + 1] = g, G, GG,
-        # GGG at piece i's start).
+        # straight into the band-major table that stage 2 reads (T[l, i + 1] = g, G, GG, GGG
+        # at piece i's start).
         for l in range(L):
             G[l] = 0.0
             GG[l] = 0.0
@@ -348,7 +397,7 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
                                 s = min(bb, y1[l]) - max(ba, y0[l])
                                 acc[l] += max(s, 0.0) * inv_h[l] * f[tr, tc, l]
             Lp = xb[i + 1] - xb[i]
-            k = i - lo + 1
+            k = i + 1
             for l in range(L):
                 Gl = G[l]
                 GGl = GG[l]
@@ -360,41 +409,37 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
                 GGG[l] = GGGl + Lp * (GGl + Lp * (0.5 * Gl + Lp * acc[l] * SIXTH))
                 GG[l] = GGl + Gl * Lp + 0.5 * acc[l] * Lp * Lp
                 G[l] = Gl + acc[l] * Lp
-        # Every edge located at the panels' ends: PA = its piece (−1 before the first).  An
-        # edge moves by a small fraction of a piece from one row to the next, so after the
-        # block's first row (the bucket table) each edge's piece is found by stepping from
-        # where it was in the row above: almost always no step, a branch that predicts well.
-        if not located:
+        # Every edge is located at the panels' ends, as its row of the table.  An edge moves
+        # by a small fraction of a piece from one row to the next, so in a block's first row
+        # it is counted by the bucket table and after it found by stepping from where it was
+        # in the row above (almost always no step, a branch that predicts well), in stage 2.
+        if not counted:
             for j in ends:
                 for e in range(w + 1):
-                    PA[j, e] = _count(X[j, e], xbp, start, x0, inv) - 1
-            located = True
-        else:
-            for j in ends:
-                for e in range(w + 1):
-                    x = X[j, e]
-                    u = uint64(PA[j, e] + 1)      # xlim's index of the piece's start
-                    while xlim[u + one] <= x:
-                        u += one
-                    while xlim[u] > x:
-                        u -= one
-                    PA[j, e] = np.int64(u) - 1
-        # The table's ends: row 0 before the row's pieces (all 0), the last past them (the
-        # integrals carried on, g = 0), so that every edge, its piece clamped to
-        # [lo − 1, hi + 1] (less lo − 1: an index into T), evaluates alike.
-        nb_ = hi - lo + 2
+                    PA[j, e] = _count(X[j, e], xbp, start, x0, inv)
+                stamp[j] = r
+            counted = True
+        # The table's ends: row lo before the row's pieces (all 0), row hi + 2 past them (the
+        # integrals carried on, g = 0).  Edges in order along the row lie between them; where
+        # a row's may not (``ordered`` false), each is located now and clamped to them.
+        top = hi + 2
         for l in range(L):
-            T[l, 0, 0] = 0.0
-            T[l, 0, 1] = 0.0
-            T[l, 0, 2] = 0.0
-            T[l, 0, 3] = 0.0
-            T[l, nb_, 0] = 0.0
-            T[l, nb_, 1] = G[l]
-            T[l, nb_, 2] = GG[l]
-            T[l, nb_, 3] = GGG[l]
-        xs[0] = 0.0
-        for i in range(1, nb_ + 1):
-            xs[i] = xb[lo + i - 1]
+            T[l, lo, 0] = 0.0
+            T[l, lo, 1] = 0.0
+            T[l, lo, 2] = 0.0
+            T[l, lo, 3] = 0.0
+            T[l, top, 0] = 0.0
+            T[l, top, 1] = G[l]
+            T[l, top, 2] = GG[l]
+            T[l, top, 3] = GGG[l]
+        if not ordered and not _within(X, ends, emn, emx, xlim[lo], xlim[top + 1]):
+            stats[2] += 1
+            for j in ends:
+                if stamp[j] != r:
+                    _locate(X[j], PA[j], xlim)
+                    stamp[j] = r
+                for e in range(w + 1):
+                    PA[j, e] = min(max(PA[j, e], lo), top)
         # Stage 2, band by band and panel by panel: GG and GGG at every edge at the panel's
         # ends, its mean G over the panel, the pixels' sums.
         for l in range(L):
@@ -406,30 +451,42 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
             for s in range(npan):
                 i0, im, i1 = _panel(s, n)
                 j0, jm, j1 = bnodes[b0 + i0], bnodes[b0 + im], bnodes[b0 + i1]
+                if stamp[j0] != r:
+                    _locate(X[j0], PA[j0], xlim)
+                    stamp[j0] = r
+                # The panel's far end is located in the loop that reads the table there (it
+                # is the next band's near end): one pass over its edges, not two.
+                walk = stamp[j1] != r
+                stamp[j1] = r
                 # The gathers from the table (in a loop of their own: the divisions after
                 # them vectorise), then each edge's mean over the panel.
-                still = False
                 for e in range(w + 1):
                     xa = X[j0, e]
                     xe = X[j1, e]
-                    # Unsigned (above): a clamped piece is never negative (13 % of this loop).
-                    pa = uint64(min(max(PA[j0, e], lo - 1), hi + 1) - lo + 1)
-                    pe = uint64(min(max(PA[j1, e], lo - 1), hi + 1) - lo + 1)
+                    # Unsigned (above): never negative.
+                    pa = uint64(PA[j0, e])
+                    pe = uint64(PA[j1, e])
+                    if walk:
+                        while xlim[pe + one] <= xe:
+                            pe += one
+                        while xlim[pe] > xe:
+                            pe -= one
+                        PA[j1, e] = np.int64(pe)
                     GGa, G3a = _table_ggg(T, l, pa, xa - xs[pa])
                     GGe, G3e = _table_ggg(T, l, pe, xe - xs[pe])
                     dGG[e] = GGe - GGa
                     GG1[e] = GGe
                     dG3[e] = G3e - G3a
-                    still |= not abs(xe - xa) > STILL
+                n_still = 0
                 for e in range(w + 1):
                     mG[e] = _panel_mean_d(X[j0, e], X[jm, e], X[j1, e], dGG[e], GG1[e], dG3[e])
-                if still:
+                    n_still += not abs(X[j1, e] - X[j0, e]) > STILL
+                if n_still:
                     # An edge that stands still (a monochromatic band's): G at the edge.
                     for e in range(w + 1):
                         if not abs(X[j1, e] - X[j0, e]) > STILL:
                             xm = 0.5 * (X[j0, e] + X[j1, e])
-                            p = _count(xm, xbp, start, x0, inv) - 1
-                            p = min(max(p, lo - 1), hi + 1) - lo + 1
+                            p = min(max(_count(xm, xbp, start, x0, inv), lo), top)
                             mG[e] = T[l, p, 1] + (xm - xs[p]) * T[l, p, 0]
                 for c in range(w):
                     accv[c] += (mG[c + 1] - mG[c]) / _mean_width(X, j0, jm, j1, c)
@@ -440,7 +497,7 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
 
 
 def view_forward(f, code, view, relay, part, bucket: Buckets, geom, cxn, cyl, band_nodes,
-                 bands, tau, out, rows=None):
+                 bands, tau, out, rows=None, ordered: bool = False):
     """Irradiance (La, h, w) float32 of one view in the bands ``bands`` (rows ``rows``).
 
     Parameters
@@ -471,6 +528,10 @@ def view_forward(f, code, view, relay, part, bucket: Buckets, geom, cxn, cyl, ba
         The view's throughput in every band.
     out : (La, ≥ h, ≥ w) float32
         Written at ``rows`` (all rows by default), in its first ``w`` columns.
+    ordered : bool
+        The caller knows that every node's pixel edges are in order along every row
+        (:meth:`sim.transport.Transport.edges_ordered`), so no row checks that its edges lie
+        among its pieces.
     """
     xb, mcol, tcol = part
     f = np.asarray(f)
@@ -481,13 +542,13 @@ def view_forward(f, code, view, relay, part, bucket: Buckets, geom, cxn, cyl, ba
     bnodes = np.concatenate([np.asarray(b, np.int64) for b in band_nodes])
     # The nodes where edges are located: every panel's ends (a band's nodes at even places).
     ends = np.unique(np.concatenate([np.asarray(b, np.int64)[::2] for b in band_nodes]))
-    stats = np.zeros(2, np.int64)
+    stats = np.zeros(3, np.int64)
     pmax = max_pieces(relay, f.shape[0]) + 16
     _kernel(f, code, int(view), np.asarray(relay, np.float64), f.shape[0], xb, mcol, tcol,
             bucket.xbp, bucket.start, bucket.x0, bucket.inv, geom.prc, geom.pre, geom.pceT,
             geom.pccT, np.ascontiguousarray(cxn, np.float64),
             np.ascontiguousarray(cyl, np.float64), boff, bnodes, ends,
-            np.asarray(bands, np.int64), tau, out, r0, r1, pmax, stats)
+            np.asarray(bands, np.int64), tau, out, r0, r1, pmax, stats, bool(ordered))
     if stats[1]:
         raise RuntimeError(f"{int(stats[1])} rows have more y gaps than the {pmax} expected")
     return out

@@ -161,3 +161,67 @@ def test_bands_cut_into_panels():
     lhs = np.vdot(want[l].astype(np.float64), e.astype(np.float64))
     rhs = np.vdot(band.astype(np.float64), tr.view_band_adjoint(e, k, l, band.shape))
     assert abs(lhs - rhs) <= 1e-7 * float(np.abs(want[l].astype(np.float64) * e).sum())
+
+
+@pytest.mark.mitsuba
+def test_edges_out_of_order_are_clamped_to_their_rows_pieces(small_transport):
+    """Stage 2 reads the table at each edge's piece unclamped where the transport vouches that
+    the edges are in order along every row (every design's are); a map that folds back
+    (bent by hand here) is not vouched for, and each of its rows clamps the edges that leave
+    its pieces, as the per-band kernel does, instead of reading rows of the table that the
+    row never wrote."""
+    import copy
+
+    from sim.transport import Transport
+
+    tr = small_transport
+    assert all(tr.edges_ordered(k) for k in range(len(tr.views)))
+    k = 1
+    maps = copy.copy(tr.maps)
+    maps.mask = tr.maps.mask.copy()
+    # A column-quadratic term as large as half the slope: the edges of a row's first sixth
+    # of columns run backwards, past its first piece.
+    maps.mask[k, :, 0, 0, 2] += 0.5 * maps.mask[k, :, 0, 0, 1]
+    from sim.design import get_design
+
+    bent = Transport(get_design("small"), maps, tr.intervals, tr.band_nodes)
+    assert not bent.edges_ordered(k) and bent.edges_ordered(0)
+    # Every mask cell open and a scene alike down each column, so that both kernels'
+    # footprints (interpolated differently in y) integrate the same g.
+    code = np.full_like(bent.code, bent.views[k])
+    row = np.random.default_rng(6).random((1, 158, bent.n_bands)).astype(np.float32)
+    f = np.ascontiguousarray(np.broadcast_to(row, (158, 158, bent.n_bands)))
+    bands = list(range(bent.n_bands))
+    geom = bent.geometry(k, 0)
+    args = (f, code, bent.views[k], maps.relay[k], bent.partition(k, 158),
+            bent.buckets(k, 158), geom, maps.mask[k, :, 0],
+            np.stack([pi.band_mean(maps.mask[k, :, 1], b) for b in bent.band_nodes]),
+            bent.band_nodes, bands, bent.throughput(k))
+    got = vi.view_forward(*args, np.zeros((len(bands), geom.h, geom.w), np.float32))
+    want = np.stack([pi.band_forward(np.ascontiguousarray(f[:, :, l]), code, bent.views[k],
+                                     maps.relay[k], bent.partition(k, 158),
+                                     bent.geometry(k, l), bent.throughput(k, l))
+                     for l in bands])
+    peak = float(np.abs(want).max())
+    assert np.isfinite(got).all() and float(np.abs(got).max()) <= peak * (1 + AGREE)
+    # Vouched for wrongly, the rows read what the table held before: far off.
+    wrong = vi.view_forward(*args, np.zeros_like(got), None, True)
+    assert float(np.abs(wrong).max()) > 10 * peak
+    # Past the fold (pixels whose edges all lie beyond any x the folded edges reach, and a
+    # knot's spacing more) the two kernels agree as they do on any map.
+    xs = np.stack([geom.prc @ c @ geom.pce.T for c in maps.mask[k, :, 0]])
+    back = np.diff(xs, axis=2) <= 0
+    turn = int(np.flatnonzero(back.any(axis=(0, 1))).max()) + 1
+    reach = xs[:, :, :turn + 1].max(axis=(0, 2))
+    clear = xs[:, :, :-1].min(axis=0) > reach[:, None] + vi.KNOT
+    assert clear.sum() > 0.3 * clear.size
+    np.testing.assert_allclose(np.where(clear, got, 0), np.where(clear, want, 0), rtol=0,
+                               atol=AGREE * peak)
+    # On a map in order the row check changes nothing.
+    g2 = tr.geometry(k, 0)
+    a2 = (f, tr.code, tr.views[k], tr.maps.relay[k], tr.partition(k, 158),
+          tr.buckets(k, 158), g2, tr.maps.mask[k, :, 0],
+          np.stack([pi.band_mean(tr.maps.mask[k, :, 1], b) for b in tr.band_nodes]),
+          tr.band_nodes, bands, tr.throughput(k))
+    np.testing.assert_array_equal(vi.view_forward(*a2, np.zeros_like(got)),
+                                  vi.view_forward(*a2, np.zeros_like(got), None, True))
