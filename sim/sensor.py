@@ -148,11 +148,13 @@ class BlurredSum:
     each has a real spectrum :math:`\hat K_l`, so a band's product is a real one, element by
     element, in OpenCV's packed layout of a real image's transform (CCS: the real and imaginary
     parts of :math:`\mathcal F(E_l)` side by side, each times :math:`\hat K_l` at its
-    frequency; :func:`ccs_multiplier`).  OpenCV's real transform of a 960² image took 1.4 ms
-    where SciPy's took 2.4 (one core, ``docs/figures.md``).  The blur of the image's first
-    pixel lands ``R`` before it, wrapped to the transform's far end; the result is rolled
-    back.  The result (h + 2R, w + 2R) covers the view widened by ``R``: the whole of its blur.
-    Float32 transforms: round-off ~10⁻⁷ of the peak.
+    frequency; :func:`ccs_multiplier`).  The spectrum is kept as it is, half the size of the
+    packed layout (every factor but a few stands twice there), and the products of two bands
+    are added in one pass (:func:`ccs_multiply_add`).  OpenCV's real transform of a 960²
+    image took 1.4 ms where SciPy's took 2.4 (one core, ``docs/figures.md``).  The blur of
+    the image's first pixel lands ``R`` before it, wrapped to the transform's far end; the
+    result is rolled back.  The result (h + 2R, w + 2R) covers the view widened by ``R``: the
+    whole of its blur.  Float32 transforms: round-off ~10⁻⁷ of the peak.
 
     Parameters
     ----------
@@ -185,9 +187,11 @@ class BlurredSum:
         """Each band's kernel spectrum for transforms of ``shape``, computed once and kept
         (before threads take :meth:`spectrum`, which would each compute the missing ones)."""
         for l in bands:
-            self._kernel_ccs(int(l), tuple(shape))
+            self._kernel_spectrum(int(l), tuple(shape))
 
-    def _kernel_ccs(self, l, shape):
+    def _kernel_spectrum(self, l, shape):
+        r"""Band ``l``'s weighted kernel spectrum :math:`s_l \hat K_l` (H, W/2 + 1) float32
+        for transforms of ``shape`` (H, W), real (:func:`ccs_multiplier` lays it out)."""
         key = (l, shape)
         if key not in self._fk:
             k = np.asarray(self.kernels[l], np.float64)
@@ -203,7 +207,7 @@ class BlurredSum:
             pad = np.zeros(shape, np.float64)
             pad[:k.shape[0], :k.shape[1]] = k
             pad = np.roll(pad, (-r, -r), axis=(0, 1))
-            self._fk[key] = ccs_multiplier(np.fft.rfft2(pad).real)
+            self._fk[key] = np.fft.rfft2(pad).real.astype(np.float32)
         return self._fk[key]
 
     def __call__(self, images, bands, size=None) -> np.ndarray:
@@ -241,22 +245,31 @@ class BlurredSum:
         h, w = int(size[0]), int(size[1])
         shape = self.shape(h, w, bands)
         padded = images.shape[1:] == shape
-        acc = None
-        term = np.empty(shape, np.float32)
+        part = list(part)
+        if not part:
+            return None
         pad = None if padded else np.zeros(shape, np.float32)
-        for i in part:
+
+        def transform(i, dst=None):
             if padded:
-                src = images[i]
+                return cv2.dft(images[i], dst=dst)
+            pad[:h, :w] = images[i]
+            return cv2.dft(pad, dst=dst)
+
+        first = part[0]
+        acc = transform(first)
+        ccs_multiply(acc, acc, self._kernel_spectrum(bands[first], shape))
+        # The rest two at a time: the sum read and written once a pair, in the bands' order.
+        terms = (np.empty(shape, np.float32), np.empty(shape, np.float32))
+        for n in range(1, len(part), 2):
+            pair = part[n:n + 2]
+            for i, t in zip(pair, terms):
+                transform(i, t)
+            ks = [self._kernel_spectrum(bands[i], shape) for i in pair]
+            if len(pair) == 2:
+                ccs_multiply_add(acc, terms[0], ks[0], terms[1], ks[1])
             else:
-                pad[:h, :w] = images[i]
-                src = pad
-            fk = self._kernel_ccs(bands[i], shape)
-            if acc is None:
-                acc = cv2.dft(src)
-                acc *= fk
-            else:
-                cv2.dft(src, dst=term)
-                _multiply_add(acc, term, fk)
+                ccs_multiply_add(acc, terms[0], ks[0], terms[0], ks[0], two=False)
         return acc
 
     def image(self, parts, bands, size) -> np.ndarray:
@@ -305,7 +318,7 @@ class BlurredSum:
                 np.multiply(image, self.scales[l], out=out[i])
             return out
         shape = self.shape(h, w, bands)
-        fk = [self._kernel_ccs(l, shape) for l in bands]
+        fk = [self._kernel_spectrum(l, shape) for l in bands]
         pad = np.zeros(shape, np.float32)
         pad[:h + 2 * R, :w + 2 * R] = image
         F = cv2.dft(pad)
@@ -317,7 +330,7 @@ class BlurredSum:
             for i in idx:
                 # The kernels are centred on the origin: view pixel (i, j) is the blur's
                 # (i + R, j + R), and no sum wraps (the transform is at least h + 2R).
-                np.multiply(F, fk[i], out=prod)
+                ccs_multiply(prod, F, fk[i])
                 cv2.dft(prod, dst=back, flags=flags)
                 out[i] = back[R:R + h, R:R + w]
 
@@ -373,13 +386,57 @@ def ccs_multiplier(spectrum: np.ndarray) -> np.ndarray:
     return out.astype(np.float32)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _packed_row(i, H):
+    """The spectrum's row whose factor row ``i`` of the packed layout's first and last columns
+    takes (row 0: frequency 0; rows 2m − 1, 2m: m; row H − 1: H/2)."""
+    return 0 if i == 0 else (H // 2 if i == H - 1 else (i + 1) // 2)
+
+
 @njit(cache=True, nogil=True, fastmath={"contract"})
-def _multiply_add(acc, a, b):
-    """``acc += a * b`` element by element (one pass: NumPy would make the product as a
-    temporary and read it back)."""
-    x, y, z = acc.ravel(), a.ravel(), b.ravel()
-    for i in range(x.shape[0]):
-        x[i] += y[i] * z[i]
+def ccs_multiply(out, a, k):
+    """``out = a · K`` for a packed (CCS) transform ``a`` (H, W) and a real spectrum ``k``
+    (H, W/2 + 1): the element-wise product with :func:`ccs_multiplier` of ``k``, without
+    laying it out (``out`` may be ``a``)."""
+    H, W = a.shape
+    for i in range(H):
+        m = _packed_row(i, H)
+        out[i, 0] = a[i, 0] * k[m, 0]
+        out[i, W - 1] = a[i, W - 1] * k[m, W // 2]
+        o, u, q = out[i], a[i], k[i]
+        for kx in range(1, W // 2):
+            f = q[kx]
+            o[2 * kx - 1] = u[2 * kx - 1] * f
+            o[2 * kx] = u[2 * kx] * f
+
+
+@njit(cache=True, nogil=True, fastmath={"contract"})
+def ccs_multiply_add(acc, a, k, b, kb, two=True):
+    """``acc += a · K (+ b · Kb)``: :func:`ccs_multiply`'s products of one or two packed
+    transforms added in one pass, ``a``'s first (the sum is the same to the bit as two
+    passes: each product is added as it is, in that order)."""
+    H, W = acc.shape
+    for i in range(H):
+        m = _packed_row(i, H)
+        for c, kx in ((0, 0), (W - 1, W // 2)):
+            x = acc[i, c] + a[i, c] * k[m, kx]
+            if two:
+                x = x + b[i, c] * kb[m, kx]
+            acc[i, c] = x
+        o, u, q = acc[i], a[i], k[i]
+        if two:
+            v, qb = b[i], kb[i]
+            for kx in range(1, W // 2):
+                f, g = q[kx], qb[kx]
+                c = 2 * kx - 1
+                o[c] = (o[c] + u[c] * f) + v[c] * g
+                o[c + 1] = (o[c + 1] + u[c + 1] * f) + v[c + 1] * g
+        else:
+            for kx in range(1, W // 2):
+                f = q[kx]
+                c = 2 * kx - 1
+                o[c] = o[c] + u[c] * f
+                o[c + 1] = o[c + 1] + u[c + 1] * f
 
 
 def _as_cube(irradiance: np.ndarray, wavelengths) -> tuple[np.ndarray, np.ndarray]:

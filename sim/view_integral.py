@@ -358,10 +358,9 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
             GG[l] = 0.0
             GGG[l] = 0.0
         for i in range(lo, hi + 1):
-            for l in range(L):
-                acc[l] = 0.0
             mc = mcol[i]
             tc = tcol[i]
+            lit = False
             if mc >= 0 and tc >= 0:
                 xm = 0.5 * (xb[i] + xb[i + 1])
                 u = (xm - xk) / KNOT
@@ -369,12 +368,13 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
                 t = u - q
                 # A piece whose footprint meets no cell open to this view adds nothing: its
                 # bands' bounds and heights are not needed (two pieces in five on `paper`).
-                lit = False
                 for p in range(gk_lo[q], gk_hi[q]):
                     if _open(code, view, pmr[p], ptr_[p], mc):
                         lit = True
                         break
                 if lit:
+                    for l in range(L):
+                        acc[l] = 0.0
                     for l in range(L):
                         y0[l] = yk0[q, l] + t * (yk0[q + 1, l] - yk0[q, l])
                         y1[l] = yk1[q, l] + t * (yk1[q + 1, l] - yk1[q, l])
@@ -398,17 +398,30 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
                                 acc[l] += max(s, 0.0) * inv_h[l] * f[tr, tc, l]
             Lp = xb[i + 1] - xb[i]
             k = i + 1
-            for l in range(L):
-                Gl = G[l]
-                GGl = GG[l]
-                GGGl = GGG[l]
-                T[l, k, 0] = acc[l]
-                T[l, k, 1] = Gl
-                T[l, k, 2] = GGl
-                T[l, k, 3] = GGGl
-                GGG[l] = GGGl + Lp * (GGl + Lp * (0.5 * Gl + Lp * acc[l] * SIXTH))
-                GG[l] = GGl + Gl * Lp + 0.5 * acc[l] * Lp * Lp
-                G[l] = Gl + acc[l] * Lp
+            if lit:
+                for l in range(L):
+                    Gl = G[l]
+                    GGl = GG[l]
+                    GGGl = GGG[l]
+                    T[l, k, 0] = acc[l]
+                    T[l, k, 1] = Gl
+                    T[l, k, 2] = GGl
+                    T[l, k, 3] = GGGl
+                    GGG[l] = GGGl + Lp * (GGl + Lp * (0.5 * Gl + Lp * acc[l] * SIXTH))
+                    GG[l] = GGl + Gl * Lp + 0.5 * acc[l] * Lp * Lp
+                    G[l] = Gl + acc[l] * Lp
+            else:
+                # g = 0: the same sums with its terms left out (adding 0 changes no bit).
+                for l in range(L):
+                    Gl = G[l]
+                    GGl = GG[l]
+                    GGGl = GGG[l]
+                    T[l, k, 0] = 0.0
+                    T[l, k, 1] = Gl
+                    T[l, k, 2] = GGl
+                    T[l, k, 3] = GGGl
+                    GGG[l] = GGGl + Lp * (GGl + Lp * (0.5 * Gl))
+                    GG[l] = GGl + Gl * Lp
         # Every edge is located at the panels' ends, as its row of the table.  An edge moves
         # by a small fraction of a piece from one row to the next, so in a block's first row
         # it is counted by the bucket table and after it found by stepping from where it was
@@ -497,7 +510,7 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
 
 
 def view_forward(f, code, view, relay, part, bucket: Buckets, geom, cxn, cyl, band_nodes,
-                 bands, tau, out, rows=None, ordered: bool = False):
+                 bands, tau, out, rows=None, ordered: bool = False, report=None):
     """Irradiance (La, h, w) float32 of one view in the bands ``bands`` (rows ``rows``).
 
     Parameters
@@ -532,6 +545,9 @@ def view_forward(f, code, view, relay, part, bucket: Buckets, geom, cxn, cyl, ba
         The caller knows that every node's pixel edges are in order along every row
         (:meth:`sim.transport.Transport.edges_ordered`), so no row checks that its edges lie
         among its pieces.
+    report : dict, optional
+        Given, its ``"rows clamped"`` is set to how many rows had edges beyond their pieces
+        (clamped to them).
     """
     xb, mcol, tcol = part
     f = np.asarray(f)
@@ -549,6 +565,8 @@ def view_forward(f, code, view, relay, part, bucket: Buckets, geom, cxn, cyl, ba
             geom.pccT, np.ascontiguousarray(cxn, np.float64),
             np.ascontiguousarray(cyl, np.float64), boff, bnodes, ends,
             np.asarray(bands, np.int64), tau, out, r0, r1, pmax, stats, bool(ordered))
+    if report is not None:
+        report["rows clamped"] = int(stats[2])
     if stats[1]:
         raise RuntimeError(f"{int(stats[1])} rows have more y gaps than the {pmax} expected")
     return out

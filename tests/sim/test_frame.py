@@ -107,23 +107,34 @@ def test_blurred_sum_refuses_a_kernel_that_is_not_symmetric():
         sensor.BlurredSum([k], [1.0])(np.ones((1, 8, 9), np.float32), [0])
 
 
-def test_multiply_add_is_numpys():
-    """The blurs' fused ``acc += a * b`` against NumPy's product and sum (complex64, and
-    float32 as the packed spectra take it)."""
+def test_packed_products_are_numpys_with_the_laid_out_spectrum():
+    """The blurs' products of packed transforms with a real spectrum kept at half the size
+    (``ccs_multiply``; and ``ccs_multiply_add``, one band or two a pass) against NumPy's
+    element-wise product with :func:`sim.sensor.ccs_multiplier` of it; two bands in one pass
+    the same to the bit as one after the other."""
     rng = np.random.default_rng(2)
-    a, b, acc = ((rng.standard_normal((33, 17, 2)) @ [1, 1j]).astype(np.complex64)
-                 for _ in range(3))
-    want = acc + a * b
+    H, W = 10, 14
+    a, b, acc = (rng.standard_normal((H, W)).astype(np.float32) for _ in range(3))
+    ka, kb = (rng.standard_normal((H, W // 2 + 1)).astype(np.float32) for _ in range(2))
+    A, B = sensor.ccs_multiplier(ka), sensor.ccs_multiplier(kb)
+    out = np.empty_like(a)
+    sensor.ccs_multiply(out, a, ka)
+    np.testing.assert_array_equal(out, a * A)
+    in_place = a.copy()
+    sensor.ccs_multiply(in_place, in_place, ka)
+    np.testing.assert_array_equal(in_place, a * A)
+    one = acc.copy()
+    sensor.ccs_multiply_add(one, a, ka, a, ka, two=False)
     # Round-off of the terms (the kernel may fuse a product and a sum into one rounding).
-    bound = 4 * np.finfo(np.float32).eps * (np.abs(acc) + np.abs(a) * np.abs(b))
-    sensor._multiply_add(acc, a, b)
-    assert (np.abs(acc - want) <= bound).all()
-    assert np.abs(want).max() > 1
-    x, y, z = (rng.standard_normal((33, 34)).astype(np.float32) for _ in range(3))
-    want = x + y * z
-    sensor._multiply_add(x, y, z)
-    bound = 4 * np.finfo(np.float32).eps * (np.abs(want) + np.abs(y * z))
-    assert (np.abs(x - want) <= bound).all()
+    want = acc + a * A
+    bound = 2 * np.finfo(np.float32).eps * (np.abs(acc) + np.abs(a * A))
+    assert (np.abs(one - want) <= bound).all()
+    sensor.ccs_multiply_add(one, b, kb, b, kb, two=False)
+    two = acc.copy()
+    sensor.ccs_multiply_add(two, a, ka, b, kb)
+    np.testing.assert_array_equal(two, one)
+    assert np.abs(acc + a * A + b * B - two).max() <= 4 * np.finfo(np.float32).eps * (
+        np.abs(acc) + np.abs(a * A) + np.abs(b * B)).max()
 
 
 @pytest.mark.mitsuba
