@@ -181,13 +181,25 @@ class FrameModel:
         def size(k):
             return int(tr.maps.rects[k][2]), int(tr.maps.rects[k][3])
 
-        def add(k, part):
+        def window(k):
+            # The view widened by the blur's reach, on the sensor.
             r0, c0 = (int(v) for v in tr.maps.rects[k][:2])
             h, w = size(k)
-            a0, a1 = max(r0 - R, 0), min(r0 + h + R, Hs)
-            b0, b1 = max(c0 - R, 0), min(c0 + w + R, Ws)
-            o0, p0 = a0 - (r0 - R), b0 - (c0 - R)
-            total[a0:a1, b0:b1] += part[o0:o0 + a1 - a0, p0:p0 + b1 - b0]
+            return (slice(max(r0 - R, 0), min(r0 + h + R, Hs)),
+                    slice(max(c0 - R, 0), min(c0 + w + R, Ws)))
+
+        def add(k, part):
+            r0, c0 = (int(v) for v in tr.maps.rects[k][:2])
+            a, b = window(k)
+            total[a, b] += part[a.start - (r0 - R):a.stop - (r0 - R),
+                                b.start - (c0 - R):b.stop - (c0 - R)]
+
+        def add_blur(k, parts):
+            r0, c0 = (int(v) for v in tr.maps.rects[k][:2])
+            shape = self.blur.shape(*size(k), lit)
+            inverse = buffers.setdefault(("inverse", shape), [np.empty(shape, np.float32)])
+            used.add(("inverse", shape))
+            self.blur.add_image(parts, lit, size(k), total, (r0 - R, c0 - R), inverse[0])
 
         def blur(k, images, rows):
             def half(part):
@@ -233,16 +245,19 @@ class FrameModel:
                     # Once the previous view's blur is in, its buffer is free for the next
                     # view: no thread waits for this view's last block before taking the
                     # next view's rows.
-                    add(due[0], self.blur.image([r.result() for b, r in running if b], lit,
-                                                size(due[0])))
+                    add_blur(due[0], [r.result() for b, r in running if b])
                 due = (k, irr, [r for b, r in running if not b])
             if due is not None and R > 0:
                 spectra = [pool.submit(half) for half in blur(*due)]
-                add(due[0], self.blur.image([r.result() for r in spectra], lit, size(due[0])))
+                add_blur(due[0], [r.result() for r in spectra])
             for key in set(buffers) - used:       # only the last frame's sizes are kept
                 del buffers[key]
-        # Blur with zero padding leaves round-off around zero; charge is never negative.
-        np.maximum(total, 0.0, out=total)
+        # Blur with zero padding leaves round-off around zero; charge is never negative.  Only
+        # the views' windows hold charge: the rest of the sensor is left untouched (its
+        # pages never written).
+        for k in range(len(tr.maps.rects)):
+            a, b = window(k)
+            np.maximum(total[a, b], 0.0, out=total[a, b])
         return total
 
     @contextmanager

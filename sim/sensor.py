@@ -295,6 +295,35 @@ class BlurredSum:
                 out[ro, co] = full[ri, ci]
         return out
 
+    def add_image(self, parts, bands, size, total, corner, buffer=None) -> None:
+        """:meth:`image` of ``parts`` added into ``total`` with its first pixel at ``corner``
+        (the view's first less the reach), clipped to ``total``: the wrapped blocks of the
+        inverse transform added where they belong, with no image of their own in between
+        (the same sums).  ``buffer``, the transforms' shape in float32, takes the inverse."""
+        import cv2
+
+        h, w = int(size[0]), int(size[1])
+        R = self.reach(bands)
+        parts = [p for p in parts if p is not None]
+        spec = parts[0]
+        for p in parts[1:]:
+            spec += p
+        full = cv2.dft(spec, dst=buffer,
+                       flags=cv2.DFT_INVERSE | cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
+        S0, S1 = full.shape
+        H, W = total.shape
+        r0, c0 = int(corner[0]), int(corner[1])
+        # (first pixel of the blur, its length, where it starts in the inverse transform)
+        rows = ((R, h + R, 0), (0, R, S0 - R))
+        cols = ((R, w + R, 0), (0, R, S1 - R))
+        for i0, n, f0 in rows:
+            a0, a1 = max(r0 + i0, 0), min(r0 + i0 + n, H)
+            for j0, m, g0 in cols:
+                b0, b1 = max(c0 + j0, 0), min(c0 + j0 + m, W)
+                if a1 > a0 and b1 > b0:
+                    fa, fb = f0 + a0 - (r0 + i0), g0 + b0 - (c0 + j0)
+                    total[a0:a1, b0:b1] += full[fa:fa + a1 - a0, fb:fb + b1 - b0]
+
     def adjoint(self, image, bands, size) -> np.ndarray:
         r"""The adjoint of :meth:`__call__`: each band's image (La, h, w) float32,
 
