@@ -104,11 +104,11 @@ def _count(x, xbp, start, x0, inv):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _table_ggg(T, l, p, d):
-    """(GG, GGG) of band ``l`` at ``d`` past the start of the table's row ``p`` (g, G, GG,
-    GGG there), as :func:`sim.pixel_integral._ggg` evaluates its own arrays."""
-    return (T[l, p, 2] + d * (T[l, p, 1] + 0.5 * d * T[l, p, 0]),
-            T[l, p, 3] + d * (T[l, p, 2] + d * (0.5 * T[l, p, 1] + d * T[l, p, 0] * SIXTH)))
+def _table_ggg(Tl, p, d):
+    """(GG, GGG) at ``d`` past the start of a band's table row ``p`` (g, G, GG, GGG there),
+    as :func:`sim.pixel_integral._ggg` evaluates its own arrays."""
+    return (Tl[p, 2] + d * (Tl[p, 1] + 0.5 * d * Tl[p, 0]),
+            Tl[p, 3] + d * (Tl[p, 2] + d * (0.5 * Tl[p, 1] + d * Tl[p, 0] * SIXTH)))
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -472,24 +472,42 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
                 walk = stamp[j1] != r
                 stamp[j1] = r
                 # The gathers from the table (in a loop of their own: the divisions after
-                # them vectorise), then each edge's mean over the panel.
-                for e in range(w + 1):
-                    xa = X[j0, e]
-                    xe = X[j1, e]
-                    # Unsigned (above): never negative.
-                    pa = uint64(PA[j0, e])
-                    pe = uint64(PA[j1, e])
-                    if walk:
+                # them vectorise), then each edge's mean over the panel.  The loop is written
+                # twice, with the far end's step and without (LLVM left the test in one
+                # loop), over the band's rows of the table and the nodes' rows taken once
+                # (fewer addresses kept: 2-3 % of a view).
+                Tl = T[l]
+                Xa = X[j0]
+                Xe = X[j1]
+                Pa = PA[j0]
+                Pe = PA[j1]
+                if walk:
+                    for e in range(w + 1):
+                        xa = Xa[e]
+                        xe = Xe[e]
+                        pa = uint64(Pa[e])
+                        pe = uint64(Pe[e])
                         while xlim[pe + one] <= xe:
                             pe += one
                         while xlim[pe] > xe:
                             pe -= one
-                        PA[j1, e] = np.int64(pe)
-                    GGa, G3a = _table_ggg(T, l, pa, xa - xs[pa])
-                    GGe, G3e = _table_ggg(T, l, pe, xe - xs[pe])
-                    dGG[e] = GGe - GGa
-                    GG1[e] = GGe
-                    dG3[e] = G3e - G3a
+                        Pe[e] = np.int64(pe)
+                        GGa, G3a = _table_ggg(Tl, pa, xa - xs[pa])
+                        GGe, G3e = _table_ggg(Tl, pe, xe - xs[pe])
+                        dGG[e] = GGe - GGa
+                        GG1[e] = GGe
+                        dG3[e] = G3e - G3a
+                else:
+                    for e in range(w + 1):
+                        xa = Xa[e]
+                        xe = Xe[e]
+                        pa = uint64(Pa[e])
+                        pe = uint64(Pe[e])
+                        GGa, G3a = _table_ggg(Tl, pa, xa - xs[pa])
+                        GGe, G3e = _table_ggg(Tl, pe, xe - xs[pe])
+                        dGG[e] = GGe - GGa
+                        GG1[e] = GGe
+                        dG3[e] = G3e - G3a
                 n_still = 0
                 for e in range(w + 1):
                     mG[e] = _panel_mean_d(X[j0, e], X[jm, e], X[j1, e], dGG[e], GG1[e], dG3[e])
