@@ -459,8 +459,10 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
             b0 = boff[l]
             n = boff[l + 1] - b0
             npan = max((n - 1) // 2, 1)
-            for c in range(w):
-                accv[c] = 0.0
+            bl = bands[l]
+            if npan > 1:
+                for c in range(w):
+                    accv[c] = 0.0
             for s in range(npan):
                 i0, im, i1 = _panel(s, n)
                 j0, jm, j1 = bnodes[b0 + i0], bnodes[b0 + im], bnodes[b0 + i1]
@@ -519,12 +521,19 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
                             xm = 0.5 * (X[j0, e] + X[j1, e])
                             p = min(max(_count(xm, xbp, start, x0, inv), lo), top)
                             mG[e] = T[l, p, 1] + (xm - xs[p]) * T[l, p, 0]
+                if npan == 1:
+                    # One panel: the pixels' sums written straight out (0 + v: the same bits
+                    # as summed into zeros).
+                    for c in range(w):
+                        v = 0.0 + (mG[c + 1] - mG[c]) / _mean_width(X, j0, jm, j1, c)
+                        out[l, r, c] = tau[bl, r, c] * v
+                else:
+                    for c in range(w):
+                        accv[c] += (mG[c + 1] - mG[c]) / _mean_width(X, j0, jm, j1, c)
+            if npan > 1:
+                inv_n = 1.0 / npan
                 for c in range(w):
-                    accv[c] += (mG[c + 1] - mG[c]) / _mean_width(X, j0, jm, j1, c)
-            bl = bands[l]
-            inv_n = 1.0 / npan
-            for c in range(w):
-                out[l, r, c] = tau[bl, r, c] * accv[c] * inv_n
+                    out[l, r, c] = tau[bl, r, c] * accv[c] * inv_n
 
 
 def view_forward(f, code, view, relay, part, bucket: Buckets, geom, cxn, cyl, band_nodes,
