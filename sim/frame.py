@@ -153,7 +153,8 @@ class FrameModel:
         cores.  Dark bands are skipped: a band-pass capture lights one.
 
         The zero-padded images the blurs transform (two per view size: one integrated while
-        the other is blurred; 91 MiB each on ``paper``) are kept for the next frame.
+        the other is blurred; 91 MiB each on ``paper``), each half's spectra and the inverse
+        transform (25 MiB) are kept for the next frame.
         """
         from concurrent.futures import ThreadPoolExecutor
         from functools import partial
@@ -202,14 +203,24 @@ class FrameModel:
             self.blur.add_image(parts, lit, size(k), total, (r0 - R, c0 - R), inverse[0])
 
         def blur(k, images, rows):
-            def half(part):
+            shape = self.blur.shape(*size(k), lit)
+
+            def half(part, work):
                 # A view's blur reads its images once their blocks of rows are done; they
                 # were queued before it, so another thread is finishing them, if any.
                 for r in rows:
                     r.result()
-                return self.blur.spectrum(images, lit, part, size(k))
+                return self.blur.spectrum(images, lit, part, size(k), work)
 
-            return [partial(half, part) for part in halves(len(lit))]
+            # Each half's sum and transforms in buffers kept for the next view: its sum is
+            # added to the frame (add_blur) before the next view's halves are queued.
+            jobs = []
+            for i, part in enumerate(halves(len(lit))):
+                key = ("spectra", i, shape)
+                used.add(key)
+                work = buffers.setdefault(key, [np.empty(shape, np.float32) for _ in range(3)])
+                jobs.append(partial(half, part, work))
+            return jobs
 
         with self._workspace() as buffers, ThreadPoolExecutor(cores()) as pool:
             due = None      # (view, its images, their blocks) whose blur the threads take next

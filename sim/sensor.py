@@ -234,12 +234,14 @@ class BlurredSum:
         parts = _by_halves(lambda idx: self.spectrum(images, bands, idx, (h, w)), len(bands))
         return self.image(parts, bands, (h, w))
 
-    def spectrum(self, images, bands, part, size):
+    def spectrum(self, images, bands, part, size, work=None):
         r"""The weighted spectra of the images ``part`` (indices into ``bands``) summed,
         :math:`\sum_{i \in \text{part}} s_l \hat K_l\, \mathcal F(E_i)` in OpenCV's packed
         layout (:meth:`shape`), or None for no images; ``images`` as in :meth:`__call__`
         (padded or not).  The blurred sum is :meth:`image` of such parts: a caller may compute
-        them on threads of its own, e.g. while it integrates the next view."""
+        them on threads of its own, e.g. while it integrates the next view.  ``work``, three
+        float32 arrays of the transforms' shape, takes the sum (returned) and the transforms
+        (a caller that blurs view after view spares their allocation and first touch)."""
         import cv2
 
         h, w = int(size[0]), int(size[1])
@@ -256,11 +258,13 @@ class BlurredSum:
             pad[:h, :w] = images[i]
             return cv2.dft(pad, dst=dst)
 
+        if work is None:
+            work = [np.empty(shape, np.float32) for _ in range(3)]
         first = part[0]
-        acc = transform(first)
+        acc = transform(first, work[0])
         ccs_multiply(acc, acc, self._kernel_spectrum(bands[first], shape))
         # The rest two at a time: the sum read and written once a pair, in the bands' order.
-        terms = (np.empty(shape, np.float32), np.empty(shape, np.float32))
+        terms = work[1:]
         for n in range(1, len(part), 2):
             pair = part[n:n + 2]
             for i, t in zip(pair, terms):
@@ -274,25 +278,11 @@ class BlurredSum:
 
     def image(self, parts, bands, size) -> np.ndarray:
         """:math:`S` (h + 2R, w + 2R) float32 from :meth:`spectrum`'s ``parts`` (added in their
-        order; None for an empty part): one inverse transform, rolled back by the reach."""
-        import cv2
-
-        h, w = int(size[0]), int(size[1])
+        order; None for an empty part): one inverse transform, rolled back by the reach
+        (:meth:`add_image` into zeros)."""
         R = self.reach(bands)
-        parts = [p for p in parts if p is not None]
-        total = parts[0]
-        for p in parts[1:]:
-            total += p
-        full = cv2.dft(total, flags=cv2.DFT_INVERSE | cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
-        # The kernels are centred on the origin: the blur's first R rows and columns wrapped
-        # to the far end.
-        S0, S1 = full.shape
-        out = np.empty((h + 2 * R, w + 2 * R), np.float32)
-        rows = ((slice(R, None), slice(0, h + R)), (slice(0, R), slice(S0 - R, S0)))
-        cols = ((slice(R, None), slice(0, w + R)), (slice(0, R), slice(S1 - R, S1)))
-        for ro, ri in rows:
-            for co, ci in cols:
-                out[ro, co] = full[ri, ci]
+        out = np.zeros((int(size[0]) + 2 * R, int(size[1]) + 2 * R), np.float32)
+        self.add_image(parts, bands, size, out, (0, 0))
         return out
 
     def add_image(self, parts, bands, size, total, corner, buffer=None) -> None:
@@ -310,6 +300,8 @@ class BlurredSum:
             spec += p
         full = cv2.dft(spec, dst=buffer,
                        flags=cv2.DFT_INVERSE | cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
+        # The kernels are centred on the origin: the blur's first R rows and columns wrapped
+        # to the far end.
         S0, S1 = full.shape
         H, W = total.shape
         r0, c0 = int(corner[0]), int(corner[1])
