@@ -120,19 +120,20 @@ def _span(YE0, YE1, l, c):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _extremes(YE, mn, mx):
-    """(min, max) of an edge row's bounds ``YE`` (L, w), column by column over the bands
-    first (into the scratch ``mn``, ``mx``), then over the columns: one chain of comparisons
-    a row, not one a band (a chain runs at its latency).  Selects, not min/max: Numba's
-    NaN-aware min and max keep the loop from vectorising (the bounds are polynomials of
-    finite coefficients: never NaN)."""
-    L, w = YE.shape
+def _extremes(Y, rows, mn, mx):
+    """(min, max) of the rows ``rows`` of ``Y`` (an edge row's bounds over the bands, the
+    pixel edges at some nodes), column by column over the rows first (into the scratch
+    ``mn``, ``mx``), then over the columns: one chain of comparisons, not one a row (a chain
+    runs at its latency).  Selects, not min/max: Numba's NaN-aware min and max keep the loop
+    from vectorising (the values are polynomials of finite coefficients: never NaN)."""
+    w = Y.shape[1]
     for c in range(w):
-        mn[c] = YE[0, c]
-        mx[c] = YE[0, c]
-    for l in range(1, L):
+        mn[c] = Y[rows[0], c]
+        mx[c] = Y[rows[0], c]
+    for i in range(1, rows.shape[0]):
+        j = rows[i]
         for c in range(w):
-            v = YE[l, c]
+            v = Y[j, c]
             mn[c] = v if v < mn[c] else mn[c]
             mx[c] = v if v > mx[c] else mx[c]
     lo = np.inf
@@ -144,38 +145,30 @@ def _extremes(YE, mn, mx):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _locate(X, P, xlim):
-    """Each edge ``X[e]``'s row of the table, ``P[e]``, stepped from the row above's."""
-    one = uint64(1)
-    for e in range(X.shape[0]):
-        x = X[e]
-        u = uint64(P[e])
-        while xlim[u + one] <= x:
-            u += one
-        while xlim[u] > x:
-            u -= one
-        P[e] = np.int64(u)
+def _within(X, ends, mn, mx, a, b):
+    """Whether every edge ``X[j]`` of the nodes ``ends`` lies in [a, b) (:func:`_extremes`
+    with the scratch ``mn``, ``mx``)."""
+    lo, hi = _extremes(X, ends, mn, mx)
+    return lo >= a and hi < b
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _within(X, ends, mn, mx, a, b):
-    """Whether every edge ``X[j]`` of the nodes ``ends`` lies in [a, b): column by column
-    into the scratch ``mn``, ``mx`` first, as :func:`_extremes` does."""
-    n = X.shape[1]
-    for e in range(n):
-        mn[e] = X[ends[0], e]
-        mx[e] = X[ends[0], e]
-    for j in ends:
-        for e in range(n):
-            v = X[j, e]
-            mn[e] = v if v < mn[e] else mn[e]
-            mx[e] = v if v > mx[e] else mx[e]
-    lo = np.inf
-    hi = -np.inf
-    for e in range(n):
-        lo = min(lo, mn[e])
-        hi = max(hi, mx[e])
-    return lo >= a and hi < b
+def _step(u, x, xlim):
+    """The index ``u`` of ``xlim`` (the breakpoints between −∞ and +∞) with
+    ``xlim[u] <= x < xlim[u + 1]``, stepped from ``u`` (unsigned)."""
+    one = uint64(1)
+    while xlim[u + one] <= x:
+        u += one
+    while xlim[u] > x:
+        u -= one
+    return u
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _locate(X, P, xlim):
+    """Each edge ``X[e]``'s row of the table, ``P[e]``, stepped from the row above's."""
+    for e in range(X.shape[0]):
+        P[e] = np.int64(_step(uint64(P[e]), X[e], xlim))
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=set(CONTRACT))
@@ -227,6 +220,7 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
     # The row (of the block) in which each node's edges were last located.
     stamp = np.full(N, -1, np.int64)
     counted = False
+    band_rows = np.arange(L)
     emn = np.empty(w + 1)
     emx = np.empty(w + 1)
     # Walked indices (a knot's pixel, an edge's piece) are unsigned: Numba tests a signed index
@@ -256,11 +250,11 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
         if r == r_start:
             for l in range(L):
                 _poly_row(pre[r], cyl[l], pccT, YE1[l])
-            e_lo, e_hi = _extremes(YE1, ymn, ymx)
+            e_lo, e_hi = _extremes(YE1, band_rows, ymn, ymx)
         YE0, YE1 = YE1, YE0
         for l in range(L):
             _poly_row(pre[r + 1], cyl[l], pccT, YE1[l])
-        n_lo, n_hi = _extremes(YE1, ymn, ymx)
+        n_lo, n_hi = _extremes(YE1, band_rows, ymn, ymx)
         ylo = min(e_lo, n_lo)
         yhi = max(e_hi, n_hi)
         e_lo, e_hi = n_lo, n_hi
@@ -489,10 +483,7 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
                         xe = Xe[e]
                         pa = uint64(Pa[e])
                         pe = uint64(Pe[e])
-                        while xlim[pe + one] <= xe:
-                            pe += one
-                        while xlim[pe] > xe:
-                            pe -= one
+                        pe = _step(pe, xe, xlim)
                         Pe[e] = np.int64(pe)
                         GGa, G3a = _table_ggg(Tl, pa, xa - xs[pa])
                         GGe, G3e = _table_ggg(Tl, pe, xe - xs[pe])
