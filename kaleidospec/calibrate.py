@@ -154,7 +154,7 @@ def calibrate(design, *, model: str | None = None, cache_dir=None, progress: boo
 
     Parameters
     ----------
-    design : sim.design.Design
+    design : sim.optics.design.Design
     model : str, optional
         The calibrated model it must hold (:data:`kaleidospec.models.MODELS`; default
         :data:`kaleidospec.models.DEFAULT_MODEL`).  ``"footprint"`` adds L·P_y·P_x comb

@@ -6,7 +6,7 @@ what a lab sees — a design description, raw frames with their sidecars, captur
 targets — and so would work unchanged on a real instrument.  The built-in scenes are rendered
 here too (:mod:`scenes`).
 
-- **Designs** (:mod:`sim.design`): :func:`get_design`, :func:`parse_overrides`,
+- **Designs** (:mod:`sim.optics.design`): :func:`get_design`, :func:`parse_overrides`,
   :func:`design_for_views` (a design that traces the views a count needs) and
   :func:`design_of` (the design a frame's sidecar records).
 - **Frames**: :func:`render_scene` (one scene, its raw frame and its ground truth),
@@ -19,9 +19,9 @@ here too (:mod:`scenes`).
   checkerboard and ColorChecker), :func:`comb_captures` (the footprint model's comb targets),
   the band-pass filters :func:`band_intervals` and the design's dispersion averaged over each
   band, :func:`band_mean_dispersion`.
-- **The exact operator** (:mod:`sim.oracle`): :func:`oracle_operator` and
+- **The exact operator** (:mod:`sim.transport.oracle`): :func:`oracle_operator` and
   :func:`oracle_measurements`, the converged optics the calibrated models are measured against.
-- **Design studies** (:mod:`sim.measure`, :mod:`sim.glass`): :func:`measure_design`,
+- **Design studies** (:mod:`sim.measure`, :mod:`sim.optics.glass`): :func:`measure_design`,
   :func:`apex_for_span`.
 - **Housekeeping**: :func:`cache_dir` (where transports and calibrations are cached),
   :func:`limit_threads`, :func:`release_transports`.
@@ -29,7 +29,7 @@ here too (:mod:`scenes`).
 Independence of frames and captures.  A scene frame is built at
 :data:`sim.frame.SCENE_OVERSAMPLE` times the reconstruction grid (a cube file keeps its own
 resolution), so it carries detail no reconstruction grid holds, and it goes through the
-transport traced with the scene frames' own seed (:data:`sim.transport.SEEDS`), another
+transport traced with the scene frames' own seed (:data:`sim.transport.exact.SEEDS`), another
 realisation of the optics than the captures'.  A calibration learnt from the captures is
 therefore scored on light it has not seen.
 """
@@ -43,11 +43,11 @@ import numpy as np
 from recon.errors import InputError
 from sim.bands import band_intervals
 from sim.captures import CHECKER_NM, comb_captures, render_captures
-from sim.design import Design, get_design, parse_overrides
+from sim.optics.design import Design, get_design, parse_overrides
 from sim.frame import ground_truth, simulate_frame, write_frame
-from sim.glass import apex_for_span
+from sim.optics.glass import apex_for_span
 from sim.measure import measure_all as measure_design
-from sim.oracle import VIEW_ORDER, oracle_measurements, oracle_operator
+from sim.transport.oracle import VIEW_ORDER, oracle_measurements, oracle_operator
 
 __all__ = [
     "VIEW_ORDER", "Design", "get_design", "parse_overrides", "design_for_views", "design_of",
@@ -103,7 +103,7 @@ def render_scene(scene, design, *, seed: int = 0, noise: bool = True, angle_deg=
     ----------
     scene : str or path
         A name from :func:`scenes.registry.list_scenes` or a cube file.
-    design : sim.design.Design
+    design : sim.optics.design.Design
     seed : int
         Sensor noise seed.
     noise : bool
@@ -148,12 +148,12 @@ class FrameRenderer:
 
     The mean photo-electron count of a pixel is :math:`s\,\bar N_e` with :math:`s` the
     radiance scale (exposure); the frame is :func:`sim.sensor.digitise` of it.  The transport
-    is the scene frames' (:data:`sim.transport.SEEDS`), loaded once; this matches
+    is the scene frames' (:data:`sim.transport.exact.SEEDS`), loaded once; this matches
     :func:`sim.frame.simulate_frame` (the tests check it).
 
     Parameters
     ----------
-    design : sim.design.Design
+    design : sim.optics.design.Design
     shape : (H, W)
         The scene cubes' grid (any resolution).
     wavelengths : array (L,), optional
@@ -169,7 +169,7 @@ class FrameRenderer:
                  diffraction: bool = True, progress: bool = False):
         from sim.bands import check_cube
         from sim.frame import FrameModel
-        from sim.transport import SEEDS
+        from sim.transport.exact import SEEDS
 
         wl = design.wavelengths if wavelengths is None else wavelengths
         h, w = (int(s) for s in shape)
@@ -240,7 +240,7 @@ def grid_on_scene(design, cal, view_ids=None) -> tuple[np.ndarray, np.ndarray]:
     :math:`q = H_k g + d_k(H_k g)` (its homography and displacement field), which band
     :math:`l` puts on box column :math:`q_x + o_{k,l}` (the band's offset).  The scene point that
     sensor point shows in band :math:`l` is read off the simulator's exact maps (the scene
-    frames' transport, :mod:`sim.maps`: mask-plane position averaged over the band's nodes, then
+    frames' transport, :mod:`sim.transport.maps`: mask-plane position averaged over the band's nodes, then
     the relay to the diffuser); the view's answer is its mean over the bands, and the grid point
     is the mean of the answers of ``view_ids`` (default: every calibrated view), the views a
     reconstruction uses.  Where the views disagree (a calibration error) no registration
@@ -276,7 +276,7 @@ def view_answers(design, cal, view_ids=None, step: int = GRID_MAP_STEP):
         ``{view id: (x, y)}``, each (gy.size, gx.size) float64 in the design grid's pixels.
         Where the views' answers differ, the calibration disagrees with itself.
     """
-    from sim.transport import SEEDS, load_or_build
+    from sim.transport.exact import SEEDS, load_or_build
 
     idx = cal.view_indices(view_ids)
     tr = load_or_build(design, design.wavelengths, seed=SEEDS["scene"])
@@ -297,8 +297,8 @@ def view_answers(design, cal, view_ids=None, step: int = GRID_MAP_STEP):
 def _view_answer(tr, cal, i, ex, ey):
     """Where calibration view index ``i`` puts grid edge points ``(ex, ey)`` on the scene,
     averaged over the bands: (x, y) in units of the scene's side (:func:`grid_on_scene`)."""
-    from sim.maps import legendre_values
-    from sim.pixel_integral import band_mean
+    from sim.transport.maps import legendre_values
+    from sim.transport.pixel_integral import band_mean
 
     maps, k = tr.maps, tr.views.index(int(cal.view_ids[i]))
     # Grid and view coordinates put pixel centres at integers, edges at half-integers.  A view's
@@ -346,7 +346,7 @@ def cache_dir(folder=None) -> Path:
         p = Path(folder)
         p.mkdir(parents=True, exist_ok=True)
         return p
-    from sim.transport import cache_dir as default
+    from sim.transport.exact import cache_dir as default
 
     return default()
 
@@ -357,7 +357,7 @@ def limit_threads(threads: int | None) -> None:
     if threads:
         import drjit as dr
 
-        from sim.variant import ensure_variant
+        from sim.optics.variant import ensure_variant
 
         ensure_variant()
         dr.set_thread_count(int(threads))
@@ -366,9 +366,9 @@ def limit_threads(threads: int | None) -> None:
 def release_transports(which: str | None = None) -> None:
     """Drop the transports held in memory: each design point of a sweep has its own.
 
-    ``which`` (a key of :data:`sim.transport.SEEDS`) drops only that realisation's: the
+    ``which`` (a key of :data:`sim.transport.exact.SEEDS`) drops only that realisation's: the
     captures' once a calibration has them (0.4 GB for the paper design)."""
-    from sim import transport
+    from sim.transport import exact as transport
 
     if which is None:
         transport._MEMO.clear()

@@ -153,7 +153,7 @@ def truth_on_grid(truth, design, cal, model: str | None = None, view_ids=None) -
     the views ``view_ids`` (default: all the calibration's) see it, (H, W, L) float32.
 
     ``truth`` (Ht, Wt, L) covers the centre view's :math:`v \times v` square at any resolution
-    (:func:`sim.diffuser.cube_region`): a built-in scene at its own, finer resolution
+    (:func:`sim.optics.diffuser.cube_region`): a built-in scene at its own, finer resolution
     (:func:`kaleidospec.instrument.scene_cube`), or its mean on the design's grid
     (:func:`sim.frame.ground_truth`).  Every grid pixel is the exact area mean of the truth
     (piecewise constant on its texels, edge-padded) over the part of the scene the pixel

@@ -56,7 +56,7 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
     ----------
     scene : str or path
         Built-in scene name or cube file.
-    design : sim.design.Design
+    design : sim.optics.design.Design
         Widened to the views the largest count needs
         (:func:`kaleidospec.instrument.design_for_views`).
     out_dir : path

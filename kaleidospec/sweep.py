@@ -24,7 +24,7 @@ internal reflection in the prism) is ``invalid``; a design whose views do not fi
 Result store
 ------------
 ``<out>/points/<key>.json``, one file per point, written atomically; ``key`` is the design hash
-(:attr:`sim.design.Design.hash`, which covers the swept value and every override) plus a hash of
+(:attr:`sim.optics.design.Design.hash`, which covers the swept value and every override) plus a hash of
 the settings that change the result (scene, views, solver, iterations, τ, seed, samples, what
 was computed). A point whose file exists is never recomputed: rerunning a sweep, or extending
 its range or refining its step, computes only the new points. Failures (status ``error``) are

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from recon.errors import InputError
-from sim.spectra import check_wavelengths
+from scenes.spectra import check_wavelengths
 
 #: The paper's bands, used when a scene is asked for without wavelengths.
 DEFAULT_WAVELENGTHS = np.arange(450.0, 701.0, 10.0)

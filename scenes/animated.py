@@ -278,7 +278,7 @@ class MovingObject(Animation):
                  patch: int = 14, illuminant: str = "D65", background: str = "natural",
                  background_params: dict | None = None, aa: int = 4):
         from scenes.registry import get_scene
-        from sim.spectra import colorchecker_reflectances, illuminant as _illuminant
+        from scenes.spectra import colorchecker_reflectances, illuminant as _illuminant
 
         super().__init__(n_frames, fps, exposure_ms, subframes)
         self.shape = h, w = check_shape(shape)

@@ -12,7 +12,7 @@ import numpy as np
 
 from recon.errors import InputError
 from scenes._common import check_shape, wavelengths_or_default
-from sim.spectra import illuminant as _illuminant
+from scenes.spectra import illuminant as _illuminant
 
 __all__ = ["checkerboard", "white", "line", "comb"]
 

@@ -12,7 +12,7 @@ import numpy as np
 
 from recon.errors import InputError
 from scenes._common import check_shape, wavelengths_or_default
-from sim.spectra import colorchecker_reflectances, illuminant as _illuminant
+from scenes.spectra import colorchecker_reflectances, illuminant as _illuminant
 
 __all__ = ["ROWS", "COLS", "patch_boxes", "colorchecker"]
 

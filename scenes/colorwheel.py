@@ -15,7 +15,7 @@ import numpy as np
 
 from recon.errors import InputError
 from scenes._common import check_shape, coverage, supersample_grid, wavelengths_or_default, weighted_scene
-from sim.spectra import colorchecker_reflectances, illuminant as _illuminant
+from scenes.spectra import colorchecker_reflectances, illuminant as _illuminant
 
 __all__ = ["sector_reflectances", "sector_index", "colorwheel"]
 

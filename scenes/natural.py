@@ -3,7 +3,7 @@
 The photograph is one that ships with scikit-image (``astronaut``, ``chelsea``, ``coffee``,
 ``rocket``…). It is resized to the requested shape (area-averaging when shrinking), decoded from
 sRGB to linear RGB and lifted to reflectance with the Mallett & Yuksel (2019) basis
-(:func:`sim.spectra.srgb_to_reflectance`, one matrix product), then lit by the illuminant. Under
+(:func:`scenes.spectra.srgb_to_reflectance`, one matrix product), then lit by the illuminant. Under
 D65 the cube renders back to (nearly) the photograph's colours.
 """
 
@@ -13,7 +13,7 @@ import numpy as np
 
 from recon.errors import InputError
 from scenes._common import check_shape, wavelengths_or_default
-from sim.spectra import illuminant as _illuminant, srgb_to_reflectance
+from scenes.spectra import illuminant as _illuminant, srgb_to_reflectance
 
 __all__ = ["PHOTOS", "photo", "natural"]
 

@@ -33,7 +33,7 @@ costs milliseconds.  ``repeats=0`` renders noise-free frames instead (exact expe
 quantised).
 
 Independence.  Every capture goes through the transport traced with the captures' own seed
-(:data:`sim.transport.SEEDS`); scene frames and the exact operator use others.  The targets are
+(:data:`sim.transport.exact.SEEDS`); scene frames and the exact operator use others.  The targets are
 on the centre view's grid, the reconstruction grid of the calibrated models.
 
 Exposure.  Every capture is auto-exposed (brightest pixel at 80 % of the full well); the
@@ -128,7 +128,7 @@ def checker_target(design, wavelengths=None):
     pattern_size : (cols, rows)
         Inner corners per row and column (OpenCV's ``patternSize``).
     """
-    from sim.spectra import illuminant
+    from scenes.spectra import illuminant
 
     wl = design.wavelengths if wavelengths is None else np.asarray(wavelengths, np.float64)
     v = design.view_size_px
@@ -178,7 +178,7 @@ def capture(design, cube, wavelengths, *, wavelength_nm=None, repeats: int = 4, 
 
     The optics and the exposure are deterministic: the expected frame is integrated once and
     only the sensor's noise is drawn per repeat.  The transport is the captures' own realisation
-    (:data:`sim.transport.SEEDS`), never the one scene frames are rendered with.
+    (:data:`sim.transport.exact.SEEDS`), never the one scene frames are rendered with.
 
     Returns
     -------
@@ -192,7 +192,7 @@ def capture(design, cube, wavelengths, *, wavelength_nm=None, repeats: int = 4, 
     from sim.bands import check_cube
     from sim.frame import FrameModel, exposure, frame_metadata
     from sim.sensor import digitise
-    from sim.transport import SEEDS
+    from sim.transport.exact import SEEDS
 
     if repeats < 0:
         raise InputError(f"repeats must be >= 0, got {repeats}")
@@ -252,7 +252,7 @@ def render_captures(design, *, repeats: int = 4, seed: int = 1000, progress: boo
         from tqdm import tqdm
 
         bar = tqdm(total=len(steps), desc="calibration captures", unit="capture", leave=False)
-    from sim import transport
+    from sim.transport import exact as transport
 
     # The band stacks are filled in place: a list of frames and its np.stack would hold both
     # (1.9 GB more at the peak for the paper design's 26 whites and 26 lines).

@@ -59,7 +59,7 @@ def area_weights(n_in: int, n_out: int) -> np.ndarray:
 def ground_truth(design, cube) -> np.ndarray:
     """The cube (H, W, L) averaged onto the centre view's grid (v, v, L), float32.
 
-    Each cube pixel covers an equal part of the centre view (:func:`sim.diffuser.cube_region`),
+    Each cube pixel covers an equal part of the centre view (:func:`sim.optics.diffuser.cube_region`),
     so a grid pixel's truth is the exact area mean of the cube over it (:func:`area_weights`;
     the identity when the cube is already v × v, a 2 × 2 block mean at twice the resolution).
     """
@@ -75,18 +75,18 @@ def ground_truth(design, cube) -> np.ndarray:
 
 class FrameModel:
     r"""The expected frame of a cube through a design, before noise: the transport's pixel
-    integrals (:mod:`sim.transport`), each band's Airy blur, and the sensor's photo-electrons,
+    integrals (:mod:`sim.transport.exact`), each band's Airy blur, and the sensor's photo-electrons,
 
     .. math:: \bar N_e = \sum_l c_l\, (K_l * E_l), \qquad c_l = \eta(\lambda_l)\,
               \frac{\lambda_l}{hc}\, A_{px}\, t\, \Delta\lambda_l
 
     (:func:`sim.sensor.electron_scale`, :func:`sim.sensor.airy_kernel`).  Only the views are
-    integrated (all bands of a view at once, :mod:`sim.view_integral`) and only the pixels the
+    integrated (all bands of a view at once, :mod:`sim.transport.view_integral`) and only the pixels the
     blur reaches from them are blurred, scaled and summed.
 
     Parameters
     ----------
-    design : sim.design.Design
+    design : sim.optics.design.Design
     wavelengths : array_like (L,), optional
         The cube's bands (the design's by default).
     sampling : {"box", "centre"}
@@ -94,7 +94,7 @@ class FrameModel:
     wavelength_nm : float, optional
         A monochromatic capture at this wavelength: one band, the cube's band holding it.
     trace_seed : int
-        The transport's realisation (:data:`sim.transport.SEEDS`).
+        The transport's realisation (:data:`sim.transport.exact.SEEDS`).
     diffraction : bool
         Airy blur per band.
     """
@@ -104,7 +104,7 @@ class FrameModel:
                  diffraction: bool = True, progress: bool = False):
         from sim.bands import band_edges, band_intervals
         from sim.sensor import BlurredSum, airy_kernel, electron_scale
-        from sim.transport import load_or_build
+        from sim.transport.exact import load_or_build
 
         wl = design.wavelengths if wavelengths is None else np.atleast_1d(
             np.asarray(wavelengths, np.float64))
@@ -140,7 +140,7 @@ class FrameModel:
         """Mean photo-electrons (Hs, Ws) float32 of ``cube`` (H, W, L) for a radiance scale of 1.
 
         View by view: every lit band's irradiance in one pass over the view's rows
-        (:meth:`sim.transport.Transport.view_blocks`, blocks of rows on threads), then the
+        (:meth:`sim.transport.exact.Transport.view_blocks`, blocks of rows on threads), then the
         bands' blurs of the view alone, weighted and summed by FFT (:class:`sim.sensor.
         BlurredSum`), added over the view widened by the blur's reach.  The views overlap: the
         threads take the previous view's blur (its bands' spectra, in two fixed halves) between
@@ -293,18 +293,18 @@ def simulate_frame(design, cube, wavelengths, *, direct: bool = False, spp: int 
 
     Parameters
     ----------
-    design : sim.design.Design
+    design : sim.optics.design.Design
     cube : ndarray (H, W, L)
         Scene radiance at ``wavelengths`` (bands of the design), at any resolution.
     direct : bool
-        Mitsuba's path tracer (:func:`sim.render.render_direct`: a Monte Carlo reference, slow)
+        Mitsuba's path tracer (:func:`sim.optics.render.render_direct`: a Monte Carlo reference, slow)
         instead of the transport's exact pixel integrals.
     spp : int, optional
         Samples per pixel per band of a direct render (default 64; direct renders only).
     seed : int
         Sensor noise seed (and the direct render's sampler seed); same seed → same frame.
     trace_seed : int, optional
-        The transport's realisation (:data:`sim.transport.SEEDS`; default: the scene frames').
+        The transport's realisation (:data:`sim.transport.exact.SEEDS`; default: the scene frames').
     sampling : {"box", "centre"}
         Wavelengths within each band (:func:`sim.bands.band_intervals`).
     wavelength_nm : float, optional
@@ -324,7 +324,7 @@ def simulate_frame(design, cube, wavelengths, *, direct: bool = False, spp: int 
     """
     from sim import sensor
     from sim.bands import check_cube
-    from sim.transport import SEEDS
+    from sim.transport.exact import SEEDS
 
     if spp is not None and not direct:
         raise InputError("spp sets the samples of a direct render; the transport integrates "
@@ -335,7 +335,7 @@ def simulate_frame(design, cube, wavelengths, *, direct: bool = False, spp: int 
     trace_seed = SEEDS["scene"] if trace_seed is None else int(trace_seed)
     cube, wl = check_cube(design, cube, wavelengths)
     if direct:
-        from sim.render import render_direct
+        from sim.optics.render import render_direct
 
         if wavelength_nm is not None:
             model = FrameModel(design, wl, wavelength_nm=wavelength_nm, trace_seed=trace_seed,

@@ -1,8 +1,8 @@
 """Measuring a design in its own renders: view size and position, gaps, vignetting, dispersion.
 
-The design formulas (:mod:`sim.design`, :mod:`sim.glass`) *predict* where light lands; this
+The design formulas (:mod:`sim.optics.design`, :mod:`sim.optics.glass`) *predict* where light lands; this
 module *measures* it in monochromatic renders of the physical simulator (Mitsuba's path tracer,
-:func:`sim.render.render_direct`) passed through the sensor model (:func:`sim.sensor.capture`:
+:func:`sim.optics.render.render_direct`) passed through the sensor model (:func:`sim.sensor.capture`:
 Airy blur, shot and read noise, 12-bit ADC), so a design sweep can put the two side by side.
 
 Coordinates
@@ -33,7 +33,7 @@ with :math:`t` the texel size on the diffuser (mm) and :math:`M = f_{\\text{img}
 *Dispersion.* The vertical pair rendered at each wavelength in the centre view moves by
 :math:`\\varphi(\\lambda)`; the measured span is :math:`\\bar x(\\lambda_{\\max}) -
 \\bar x(\\lambda_{\\min})` at the filter's edges, compared with Sellmeier + prism geometry
-(:func:`sim.glass.dispersion_px`).
+(:func:`sim.optics.glass.dispersion_px`).
 
 *White target.* A uniform cube rendered with every code cell open (:func:`open_code_mask`: the
 design's mask without its random code, guard stripes and field stop kept) at the filter's two
@@ -222,7 +222,7 @@ def render_mono(design, target: np.ndarray, wavelength_nm: float, *, windows=Non
 
     Parameters
     ----------
-    design : sim.design.Design
+    design : sim.optics.design.Design
     target : ndarray (H, W)
         Radiance on the diffuser (relative units), placed like a scene cube.
     wavelength_nm : float
@@ -240,7 +240,7 @@ def render_mono(design, target: np.ndarray, wavelength_nm: float, *, windows=Non
         to 80 % of the full well at the brightest pixel) and return DN; otherwise return the
         noise-free irradiance.
     """
-    from sim.render import render_direct
+    from sim.optics.render import render_direct
 
     lam = float(wavelength_nm)
     if windows is None:
@@ -264,7 +264,7 @@ def render_mono(design, target: np.ndarray, wavelength_nm: float, *, windows=Non
 # ---------------------------------------------------------------------- predictions
 def _view_centre(design, view: int) -> tuple[float, float]:
     """Predicted (row, col) of the image of the tube axis in copy ``view`` at λ_c."""
-    from sim.design import VIEW_GRID
+    from sim.optics.design import VIEW_GRID
 
     r, c = VIEW_GRID[view]
     p = design.view_pitch_px
@@ -277,7 +277,7 @@ def predicted(design) -> dict:
     ``gap_x_px``/``gap_y_px``: the smallest gap between neighbouring copies' light
     (:meth:`Design.light_extent_px`, over the pass band), negative for an overlap.
     """
-    from sim.design import VIEW_GRID
+    from sim.optics.design import VIEW_GRID
 
     lo, hi = design.dispersion_range_px
     ext = {v: design.light_extent_px(v) for v in range(9)}
@@ -324,7 +324,7 @@ def _pair_windows(design, views, margin: int) -> dict[int, tuple]:
 def measure_geometry(design, *, spp: int = 8, seed: int = 0) -> dict:
     """View pitch (the measured view size), minification and view position from the line pairs
     at the prism's centre wavelength (module notes). NaN where a copy is off the sensor."""
-    from sim.diffuser import cube_region
+    from sim.optics.diffuser import cube_region
 
     lam = design.prism_center_nm
     lp = line_pair(design)
@@ -374,7 +374,7 @@ def measure_dispersion(design, wavelengths=None, *, spp: int = 8, seed: int = 0)
     and predicted position at ``prism_center_nm``), the measured and predicted span between the
     filter's edges, and the largest per-wavelength disagreement.
     """
-    from sim.glass import dispersion_px
+    from sim.optics.glass import dispersion_px
 
     lam_c = design.prism_center_nm
     if wavelengths is None:
@@ -494,7 +494,7 @@ def _clipped_copies(img: np.ndarray, design, level: float = 0.05) -> list[int]:
 
 def measure_white(design, *, spp: int = 4, seed: int = 0) -> dict:
     """Gaps/overlaps between copies, clipping by the sensor, and vignetting (module notes)."""
-    from sim.design import VIEW_GRID
+    from sim.optics.design import VIEW_GRID
 
     white = target_cube(design, "white")
     lo_img = render_mono(design, white, design.filter_min_nm, spp=spp, seed=seed + 100)

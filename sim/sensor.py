@@ -488,7 +488,7 @@ def mean_electrons(
     ----------
     irradiance : ndarray, (H, W, L) or (H, W)
         Spectral irradiance on the sensor per band, W·m⁻²·nm⁻¹.
-    design : sim.design.Design
+    design : sim.optics.design.Design
         Pixel size, exposure, QE curve, imaging f-number, band step.
     wavelengths : array_like, optional
         Band centres (nm); the design's bands by default.

@@ -18,7 +18,7 @@ def fresh_cache(tmp_path_factory):
     """``$KALEIDOSPEC_CACHE`` set, for one test module, to a fresh, empty folder (nothing reused
     from earlier runs); the module is skipped where Mitsuba's spectral variant is not usable."""
     pytest.importorskip("mitsuba")
-    from sim.variant import ensure_variant
+    from sim.optics.variant import ensure_variant
 
     try:
         ensure_variant()

@@ -66,7 +66,7 @@ RECON_MAX_DRIFT_DB = 0.25
 # ------------------------------------------------------------------------- producing the images
 def golden_design(**changes):
     """The golden design: ``small`` with :data:`OVERRIDES` (and ``changes``)."""
-    from sim.design import get_design
+    from sim.optics.design import get_design
 
     return get_design("small", {**OVERRIDES, **changes})
 

@@ -192,7 +192,7 @@ def test_demo_writes_what_the_readme_describes(demo):
 def test_demo_reaches_the_targets_the_readme_names(demo):
     from recon.io.cubes import read_cube
     from recon.metrics import psnr
-    from sim.design import Design
+    from sim.optics.design import Design
 
     _, out, _ = demo
     m = json.loads((out / "metrics.json").read_text())
@@ -265,7 +265,7 @@ def test_design_show_example(capsys):
 
 def test_render_example(demo, tmp_path, cli_env):
     from recon.io.raw import read_raw
-    from sim.design import get_design, parse_overrides
+    from sim.optics.design import get_design, parse_overrides
 
     args = readme_command("render")
     kaleidospec(args, tmp_path, cli_env)

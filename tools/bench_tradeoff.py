@@ -1,6 +1,6 @@
 """Run time against error: solver × iterations × views × noise on the simulator's ``small`` design.
 
-The problem (numbers from :func:`sim.design.get_design`):
+The problem (numbers from :func:`sim.optics.design.get_design`):
 
 - default: the ``small`` design: views of ``view_size_px`` (158 px) square, its 11 bands
   (450-700 nm) and its prism dispersion ``dispersion_px`` (~17 px, sub-pixel, not linear);
@@ -64,7 +64,7 @@ def add_noise(g: np.ndarray, snr_db: float, seed: int, read_share: float = 0.25)
 def problem(full: bool, scene: str, seed: int = 0):
     """(truth (L, H, W) band-major, masks (5, H, W), offsets (L,), description dict)."""
     from scenes.registry import get_scene
-    from sim.design import get_design
+    from sim.optics.design import get_design
 
     small = get_design("small")
     if full:

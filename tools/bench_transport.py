@@ -24,7 +24,7 @@ For each preset, from an empty cache folder:
   Carlo transport with 4 i.i.d. rays per pixel and band (what frames used to be gathered
   from) is scored the same way, for scale.
 - ``--spawn``: how far one sensor point's aperture rays spread on the mask and the diffuser
-  when Mitsuba's ``spawn_ray`` continues them, against :func:`sim.rays.continue_ray`.
+  when Mitsuba's ``spawn_ray`` continues them, against :func:`sim.optics.rays.continue_ray`.
 
 Targets (2 cores): error ≤ σ/2 for both presets; build ≤ 60 s (`small`) and ≤ 20 min
 (`paper`); the `paper` cache ≤ 2 GB; a `paper` frame ≤ 1 s.
@@ -159,8 +159,8 @@ def electrons(design, irr, wl):
 def convergence(d, tr, cube, wl, win, counts, pad):
     """The transport's bias per pixel (electrons at the default exposure) against direct
     renders of the padded window at each count, and the renders' own noise."""
-    from sim import sampled
-    from sim.render import render_direct
+    from sim.transport import sampled
+    from sim.optics.render import render_direct
 
     r0, c0, h, w = win
     big = (r0 - pad, c0 - pad, h + 2 * pad, w + 2 * pad)
@@ -191,8 +191,8 @@ def convergence(d, tr, cube, wl, win, counts, pad):
 
 def bench(preset, counts, size, cache, frames_only=False):
     from scenes.registry import get_scene
-    from sim import transport
-    from sim.design import get_design
+    from sim.transport import exact as transport
+    from sim.optics.design import get_design
     from sim.frame import FrameModel
 
     d = get_design(preset)
@@ -255,7 +255,7 @@ def bench(preset, counts, size, cache, frames_only=False):
                   f"the rest {one - sum(integrals) - sum(blurs):.2f} s")
     # The exact operator (the "oracle" reconstructions) on the same maps: one application each
     # way is one solver iteration's optics.
-    from sim.oracle import ExactOperator
+    from sim.transport.oracle import ExactOperator
 
     op = ExactOperator(d, tr, list(d.views))
     x = get_scene("natural", (v, v), wl)[0].transpose(2, 0, 1).copy()
@@ -286,10 +286,10 @@ def spawn():
     """Aperture rays of one sensor point: their spread on the mask and the diffuser."""
     import drjit as dr
 
-    from sim.design import get_design
-    from sim.maps import diffuser_coordinates, mask_coordinates
-    from sim.rays import sensor_rays, walk
-    from sim.scene import trace_setup
+    from sim.optics.design import get_design
+    from sim.transport.maps import diffuser_coordinates, mask_coordinates
+    from sim.optics.rays import sensor_rays, walk
+    from sim.optics.scene import trace_setup
 
     print("one sensor point (the left view's centre), 256 aperture rays at 575 nm: spread (px)")
     for preset in ("small", "paper"):

@@ -52,7 +52,7 @@ def main(argv=None) -> int:
     from recon.kernels import cores
     from recon.metrics import psnr
     from scenes.animated import RotatingColorwheel
-    from sim.design import get_design
+    from sim.optics.design import get_design
     from sim.frame import ground_truth, simulate_frame  # noqa: F401  (imports counted once)
 
     d = get_design(args.design)

@@ -100,7 +100,7 @@ def main(argv=None) -> int:
     from kaleidospec.reconstruct import first_views
     from recon.calibration.mask import airy_kernel, view_stack
     from sim.frame import FrameModel, ground_truth
-    from sim.transport import SEEDS
+    from sim.transport.exact import SEEDS
 
     counts = sorted({int(v) for v in a.views.split(",")})
     design = design_for_views(get_design(a.design), max(counts))

@@ -157,7 +157,7 @@ def fmt(x, spec=".2f") -> str:
 
 
 def get_design(name: str, overrides: list[str] | None):
-    from sim.design import get_design as _get, parse_overrides
+    from sim.optics.design import get_design as _get, parse_overrides
 
     return _get(name, parse_overrides(overrides))
 
@@ -267,7 +267,7 @@ def exact_mask_images(design, cal) -> np.ndarray:
     from recon.calibration.mask import normalise_mask_images, view_stack
     from scenes.calibration import white
     from sim.frame import FrameModel
-    from sim.transport import SEEDS
+    from sim.transport.exact import SEEDS
 
     wl = design.wavelengths
     cube = white((design.view_size_px,) * 2, wl)

@@ -1,14 +1,14 @@
 #!/usr/bin/env python3
 """Where one view's pixel integral spends its time, loop by loop.
 
-Runs :func:`sim.view_integral.view_forward` (every band of one view, one thread, the scene
+Runs :func:`sim.transport.view_integral.view_forward` (every band of one view, one thread, the scene
 ``natural``) for a few seconds under Linux ``perf record -e cpu-clock`` (a software clock: it
 samples where hardware counters are not available, as in most virtual machines), then
 attributes the samples that fall in the compiled kernel to its innermost loops: the kernel's
 machine code is read from memory at its address, disassembled with ``objdump``, and every
 backward jump shorter than ``--loop-bytes`` closes a loop.  Each loop is printed with its share
 of the kernel's samples and its first instructions, from which the loop in
-``sim/view_integral.py`` can be told (a ``vcvtps2pd`` and ``vminpd`` loop is stage 1's gaps, a
+``sim/transport/view_integral.py`` can be told (a ``vcvtps2pd`` and ``vminpd`` loop is stage 1's gaps, a
 run of ``vfmadd…sd`` with four table loads stage 2's reads, and so on).
 
 Samples are attributed to the instruction after the one that stalls, and an outer loop's own
@@ -50,8 +50,8 @@ def run_kernel(preset: str, view: int, scale: int, seconds: float, info: Path | 
     import numpy as np
 
     from scenes.registry import get_scene
-    from sim import transport, view_integral
-    from sim.design import get_design
+    from sim.transport import exact as transport, view_integral
+    from sim.optics.design import get_design
     from sim.frame import FrameModel
 
     d = get_design(preset)

@@ -1,4 +1,4 @@
-"""``kaleidospec design``: inspect an instrument design (:class:`sim.design.Design`)."""
+"""``kaleidospec design``: inspect an instrument design (:class:`sim.optics.design.Design`)."""
 
 from __future__ import annotations
 

@@ -2,7 +2,7 @@ r"""A forward model held as one sparse matrix: :math:`g = A f` on flattened arra
 
 The most general linear instrument: row :math:`i` of :math:`A` lists which cube entries a
 measurement pixel sees and with what weight.  Two system matrices take this form: the
-simulator's exact transport (:mod:`sim.oracle`) and the footprints measured with comb targets
+simulator's exact transport (:mod:`sim.transport.oracle`) and the footprints measured with comb targets
 (:mod:`recon.calibration.footprint`).  Columns follow the cube's band-major layout
 ``(L, H, W)``, rows the measurement's ``(K, Hv, Wm)``.
 """

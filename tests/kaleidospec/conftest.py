@@ -38,8 +38,8 @@ def tiny(tmp_path_factory):
     pytest.importorskip("mitsuba")
     import os
 
-    from sim import transport
-    from sim.design import get_design
+    from sim.transport import exact as transport
+    from sim.optics.design import get_design
 
     old = os.environ.get("KALEIDOSPEC_CACHE")
     os.environ["KALEIDOSPEC_CACHE"] = str(tmp_path_factory.mktemp("cache"))

@@ -41,9 +41,9 @@ def test_band_offsets_follow_where_the_simulator_puts_each_band(setup):
     the band's wavelength nodes), first and last bands included: their nominal wavelengths sit
     at their intervals' edges, 1.5 px from the mean for 50 nm bands."""
     d, cal, frame, meta, truth, wl = setup
-    from sim.maps import evaluate, legendre_values
-    from sim.pixel_integral import node_weights
-    from sim.transport import SEEDS, load_or_build
+    from sim.transport.maps import evaluate, legendre_values
+    from sim.transport.pixel_integral import node_weights
+    from sim.transport.exact import SEEDS, load_or_build
 
     v = d.view_size_px
     tr = load_or_build(d, wl, seed=SEEDS["scene"])

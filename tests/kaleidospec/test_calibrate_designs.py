@@ -42,7 +42,7 @@ def _check(design):
 
 
 def test_small_views():
-    from sim.design import get_design
+    from sim.optics.design import get_design
 
     d = get_design("small", REDUCED)
     assert d.view_size_px == 78
@@ -50,7 +50,7 @@ def test_small_views():
 
 
 def test_traditional_full_frame_cassi():
-    from sim.design import get_design
+    from sim.optics.design import get_design
 
     d = get_design("small", {**REDUCED, "kaleidoscope": False, "views": (0,)})
     cal, boxes = _check(d)
@@ -60,7 +60,7 @@ def test_traditional_full_frame_cassi():
 
 
 def test_wide_dispersion():
-    from sim.design import get_design
+    from sim.optics.design import get_design
 
     # 98 px views: at 50° the guard stripe (22 px) still leaves room for a 4-square board.
     base = {**REDUCED, "sensor_width_px": 376, "sensor_height_px": 300, "sensor_pixel_um": 32.0,
@@ -79,7 +79,7 @@ def test_deconvolved_masks_get_gains_that_reproduce_the_whites():
     from kaleidospec.instrument import render_captures
     from recon.calibration import operator_from_calibration
     from recon.calibration.mask import view_stack, white_levels
-    from sim.design import get_design
+    from sim.optics.design import get_design
 
     d = get_design("small", {**REDUCED, "imaging_f_number": 60.0})
     assert deconvolution_radii(d) is not None

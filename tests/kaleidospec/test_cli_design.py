@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from sim.design import get_design
+from sim.optics.design import get_design
 
 
 def _run(*args):

@@ -19,7 +19,7 @@ def test_design_for_views():
 def test_renderer_matches_simulate_frame_and_never_retraces(tiny):
     from kaleidospec.instrument import FrameRenderer
     from scenes.animated import RotatingColorwheel
-    from sim import transport
+    from sim.transport import exact as transport
     from sim.frame import simulate_frame
 
     v = tiny.view_size_px

@@ -15,7 +15,7 @@ def cache(shared_cache):
 #: grid through the scene frames' own trace, FISTA-TV with the application's defaults (to a
 #: relative change of 1e-3: 326 / 174 / 385 / 194 / 391 / 198 iterations), measured
 #: with the calibration from its own captures and with the exact operator traced with its own
-#: seed.  Honest figures: no capture shares the frame's realisation (tests/sim/test_transport.py
+#: seed.  Honest figures: no capture shares the frame's realisation (tests/sim/transport/test_exact.py
 #: checks the realisations converge).  A change that moves one by more than TOLERANCE_DB, up or
 #: down, must say why (and update these).  Last moved by the TV weight that follows the noise
 #: (kaleidospec.reconstruct.TAU_PER_NOISE): at this size it is 0.26-0.48 times the fixed

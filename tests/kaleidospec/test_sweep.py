@@ -17,7 +17,7 @@ REDUCED = dict(sensor_width_px="300", sensor_height_px="240", sensor_pixel_um="4
 
 @pytest.fixture()
 def cache(tmp_path, monkeypatch):
-    from sim import transport
+    from sim.transport import exact as transport
 
     monkeypatch.setenv("KALEIDOSPEC_CACHE", str(tmp_path / "cache"))
     transport._MEMO.clear()

@@ -334,7 +334,7 @@ def test_default_solver_follows_the_calibrated_model(tmp_path):
     the temporal term, GAP-TV's only, is then refused by name; on ``small`` GAP-TV stays."""
     from kaleidospec.calibrate import deconvolution_radii
     from kaleidospec.video import run_video
-    from sim.design import get_design
+    from sim.optics.design import get_design
 
     assert deconvolution_radii(get_design("small")) is None
     radii = deconvolution_radii(get_design("paper"))

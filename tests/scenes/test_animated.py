@@ -9,7 +9,7 @@ from recon.errors import InputError
 from recon.io.cubes import write_cube
 from scenes.animated import CubeSequence, MovingObject, RotatingColorwheel, get_animation
 from scenes.colorwheel import colorwheel, sector_reflectances
-from sim.spectra import illuminant
+from scenes.spectra import illuminant
 
 WL = np.arange(450.0, 701.0, 50.0)
 SHAPE = (64, 64)

@@ -10,7 +10,7 @@ from scenes import colorwheel as cw
 from scenes.colorchecker import patch_boxes
 from scenes.natural import photo
 from scenes.registry import get_scene, list_scenes
-from sim.spectra import cube_to_srgb, illuminant
+from scenes.spectra import cube_to_srgb, illuminant
 
 WL = np.arange(450.0, 701.0, 25.0)
 

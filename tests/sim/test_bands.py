@@ -5,7 +5,7 @@ import pytest
 
 from recon.errors import InputError
 from sim.bands import check_cube
-from sim.design import get_design
+from sim.optics.design import get_design
 
 SMALL = get_design("small")
 

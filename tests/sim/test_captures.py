@@ -5,7 +5,7 @@ import pytest
 
 from recon.errors import InputError
 from sim.captures import CHECKER_NM, capture, checker_layout, checker_target, render_captures
-from sim.design import get_design
+from sim.optics.design import get_design
 
 OVR = {"band_step_nm": 50.0}
 
@@ -98,7 +98,7 @@ def test_singles_are_the_repeats_before_averaging():
 
 
 def test_render_captures_is_complete_and_tagged():
-    from sim import transport
+    from sim.transport import exact as transport
 
     d = get_design("small", OVR)
     before = set(transport._MEMO)
@@ -133,7 +133,7 @@ def test_captures_without_keeping_the_transport_are_the_same_captures():
     """``keep_transport=False`` drops the band-pass transport before the monochromatic
     captures (memory) and changes no capture: each keeps its own noise seed."""
     from kaleidospec.instrument import release_transports
-    from sim import transport
+    from sim.transport import exact as transport
 
     d = get_design("small", OVR)
     kept = render_captures(d, repeats=1)

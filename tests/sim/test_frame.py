@@ -143,10 +143,10 @@ def test_electrons_equal_the_whole_sensor_sum(shared_cache, diffraction):
     """Nine views of ``small`` lie 2 px apart, so the blur's margins overlap: the frame, taken
     view by view with every band at once and blurred by FFT, must be the whole-sensor sum of
     every band's image, blurred directly, to the per-band kernel's agreement
-    (``tests/sim/test_view_integral.py``), and the same bits every time.  Six bands, the blur
+    (``tests/sim/transport/test_view_integral.py``), and the same bits every time.  Six bands, the blur
     reaching 1 px in some and 2 px in others, and one band dark."""
     pytest.importorskip("mitsuba")
-    from sim.design import get_design
+    from sim.optics.design import get_design
     from sim.frame import FrameModel
 
     d = get_design("small").replace(views=tuple(range(9)))
@@ -192,8 +192,8 @@ def test_views_overlapped_give_the_frame_of_one_view_after_another(shared_cache,
     from concurrent.futures import ThreadPoolExecutor
 
     import recon.kernels
-    import sim.transport
-    from sim.design import get_design
+    import sim.transport.exact
+    from sim.optics.design import get_design
     from sim.frame import FrameModel
 
     d = get_design("small").replace(views=tuple(range(9)))
@@ -229,7 +229,7 @@ def test_views_overlapped_give_the_frame_of_one_view_after_another(shared_cache,
         both = list(pool.map(model.electrons, (cube, other)))
     np.testing.assert_array_equal(both[0], want[id(cube)])
     np.testing.assert_array_equal(both[1], want[id(other)])
-    for module in (recon.kernels, sim.transport):
+    for module in (recon.kernels, sim.transport.exact):
         monkeypatch.setattr(module, "cores", lambda: 1)
     np.testing.assert_array_equal(model.electrons(cube), want[id(cube)])
 
@@ -241,8 +241,8 @@ def test_an_error_in_a_block_of_rows_reaches_the_caller(shared_cache, monkeypatc
     on two cores and on one, not leave a frame without it or a thread waiting for ever."""
     pytest.importorskip("mitsuba")
     import recon.kernels
-    import sim.transport
-    from sim.design import get_design
+    import sim.transport.exact
+    from sim.optics.design import get_design
     from sim.frame import FrameModel
 
     d = get_design("small")
@@ -255,7 +255,7 @@ def test_an_error_in_a_block_of_rows_reaches_the_caller(shared_cache, monkeypatc
     n = len(tr.maps.rects)
     for one_core in (False, True):
         if one_core:
-            for module in (recon.kernels, sim.transport):
+            for module in (recon.kernels, sim.transport.exact):
                 monkeypatch.setattr(module, "cores", lambda: 1)
         for bad in (0, n // 2, n - 1):
             def failing(f, k, bands=None, out=None, bad=bad):

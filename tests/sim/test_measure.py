@@ -14,7 +14,7 @@ REDUCED = dict(sensor_width_px=300, sensor_height_px=240, sensor_pixel_um=40.0,
 
 
 def _design(**extra):
-    from sim.design import get_design
+    from sim.optics.design import get_design
 
     return get_design("small", {**REDUCED, **extra})
 

@@ -1,11 +1,11 @@
 """The coded aperture: a chrome-on-quartz binary random mask in the relay's image plane.
 
-The pattern is :meth:`sim.design.Design.mask_pattern` (True = open quartz, False = chrome,
+The pattern is :meth:`sim.optics.design.Design.mask_pattern` (True = open quartz, False = chrome,
 guard stripes and field stop included), given as the sensor sees it: cell (i, j) is imaged at
 sensor ``mask_origin_px + (i, j)·mask_cell_px`` for the centre band. The collimator and the
 imaging lens form an inverting relay of magnification M = f_img/f_col, so a mask point at world
 (x, y) (relative to the axis) is imaged at the sensor position −M·(x, y) in the orientation of
-:data:`sim.diffuser.SENSOR_FROM_DIFFUSER`; :func:`cell_index` inverts that map.
+:data:`sim.optics.diffuser.SENSOR_FROM_DIFFUSER`; :func:`cell_index` inverts that map.
 
 The BSDF is a delta transmission straight through (a thin plate at normal incidence does not
 bend rays) with weight :math:`T_q(\\lambda)` where the cell is open and 0 on chrome. The quartz
@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim.variant import delta_bsdf_base, ensure_variant, register_plugin
+from sim.optics.variant import delta_bsdf_base, ensure_variant, register_plugin
 
 __all__ = ["register", "mask_shape", "cell_index", "quartz_transmittance", "PLUGIN"]
 
@@ -26,7 +26,7 @@ PLUGIN = "kaleidospec_mask"
 
 def quartz_transmittance(wavelength_nm) -> np.ndarray:
     """Normal-incidence transmittance of an uncoated fused-silica plate, (1−R)/(1+R)."""
-    from sim.glass import get_glass
+    from sim.optics.glass import get_glass
 
     n = get_glass("FusedSilica").n(wavelength_nm)
     R = ((n - 1.0) / (n + 1.0)) ** 2
@@ -34,7 +34,7 @@ def quartz_transmittance(wavelength_nm) -> np.ndarray:
 
 
 def _geometry(design):
-    from sim.diffuser import SENSOR_FROM_DIFFUSER
+    from sim.optics.diffuser import SENSOR_FROM_DIFFUSER
 
     sx, sy = SENSOR_FROM_DIFFUSER
     M = design.mask_to_sensor

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.variant import ensure_variant, register_plugin
+from sim.optics.variant import ensure_variant, register_plugin
 
 __all__ = ["CubeRegion", "cube_region", "register", "texel_index",
            "diffuser_shape", "PLUGIN"]
@@ -52,9 +52,9 @@ class CubeRegion:
 
 #: Orientation of the diffuser on the sensor: sensor column grows with −x (sx = −1) and sensor
 #: row with +y (sy = +1). The relay and the 4f collimator/imaging relay each invert the image
-#: once, so this is the camera's own convention (:mod:`sim.camera`, up = +y, looking back along
+#: once, so this is the camera's own convention (:mod:`sim.optics.camera`, up = +y, looking back along
 #: the folded axis); it was fixed by rendering an asymmetric target, and
-#: ``tests/sim/test_optics.py`` checks that the centre view comes out upright and unflipped.
+#: ``tests/sim/optics/test_optics.py`` checks that the centre view comes out upright and unflipped.
 SENSOR_FROM_DIFFUSER = (-1.0, 1.0)
 
 
@@ -157,7 +157,7 @@ def diffuser_shape(design, cube_lhw: np.ndarray | None, wavelengths, z: float = 
 
     Parameters
     ----------
-    design : sim.design.Design
+    design : sim.optics.design.Design
     cube_lhw : ndarray (L, H, W) or None
         Band-major radiance cube; None gives a dark emitter (for tracing the transport cache).
     wavelengths : array_like (L,)

@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim.design import get_design
+from sim.optics.design import get_design
 
 SMALL = get_design("small")
 
 
 def test_band_nodes_keep_the_dispersion_within_the_tolerance():
     from sim.bands import band_intervals
-    from sim.maps import band_nodes, panel_path_error
+    from sim.transport.maps import band_nodes, panel_path_error
 
     for d in (SMALL, get_design("paper")):
         iv = band_intervals(d)
@@ -43,7 +43,7 @@ def test_band_nodes_keep_the_dispersion_within_the_tolerance():
 
 
 def test_panel_path_error_is_zero_on_the_path_and_sees_a_cubic():
-    from sim.maps import panel_path_error
+    from sim.transport.maps import panel_path_error
 
     t = np.linspace(0.0, 1.0, 201)
     # A path whose t is quadratic in x: x(t) solves t = x/2 + 0.01 x (x − 2) on [0, 2].
@@ -59,7 +59,7 @@ def test_panel_path_error_is_zero_on_the_path_and_sees_a_cubic():
 def test_legendre_values_are_the_legendre_polynomials():
     from numpy.polynomial import legendre
 
-    from sim.maps import legendre_values
+    from sim.transport.maps import legendre_values
 
     x = np.linspace(-1.2, 1.2, 7)
     got = legendre_values(x, 5)
@@ -71,7 +71,7 @@ def test_legendre_values_are_the_legendre_polynomials():
 def test_maps_are_fitted_to_the_round_off_and_the_relay_is_the_minification(shared_cache,
                                                                             monkeypatch):
     pytest.importorskip("mitsuba")
-    from sim.transport import load_or_build
+    from sim.transport.exact import load_or_build
 
     monkeypatch.setenv("KALEIDOSPEC_CACHE", str(shared_cache))
     d = SMALL
@@ -80,11 +80,11 @@ def test_maps_are_fitted_to_the_round_off_and_the_relay_is_the_minification(shar
     # ray); the relay's affine map within 1e-3 px; the throughput within 0.1 %.
     assert m.fit_rms[:, :3].max() < 1e-3 and m.fit_rms[:, 3].max() < 1e-3, m.fit_rms
     # u = α + β m: |β| is a mask cell over the relay's minification, in scene sides.
-    from sim.diffuser import cube_region
+    from sim.optics.diffuser import cube_region
 
     side = cube_region(d, (1, 1)).dx
     beta = d.mask_pitch_um * 1e-3 / d.minification / side
-    from sim.design import VIEW_GRID
+    from sim.optics.design import VIEW_GRID
 
     for k, vid in enumerate(m.views):
         r, c = VIEW_GRID[vid]

@@ -1,17 +1,17 @@
-"""Assemble the Mitsuba scene of the instrument from a :class:`sim.design.Design`.
+"""Assemble the Mitsuba scene of the instrument from a :class:`sim.optics.design.Design`.
 
 Light travels along +z and meets, in order (DESIGN.md §1, paper Fig. 2):
 
 =====================  =========================================================================
 z (mm)                 element
 =====================  =========================================================================
-0                      diffuser (:mod:`sim.diffuser`), the scene cube as an area emitter
-0 … L                  kaleidoscope, four Al mirrors (:mod:`sim.kaleidoscope`), if enabled
-a                      relay lens, f_r (:mod:`sim.lens`); a = L + gap (1/a + 1/b = 1/f_r)
-a + b                  chrome-on-quartz mask (:mod:`sim.mask`) in the relay's image plane
+0                      diffuser (:mod:`sim.optics.diffuser`), the scene cube as an area emitter
+0 … L                  kaleidoscope, four Al mirrors (:mod:`sim.optics.kaleidoscope`), if enabled
+a                      relay lens, f_r (:mod:`sim.optics.lens`); a = L + gap (1/a + 1/b = 1/f_r)
+a + b                  chrome-on-quartz mask (:mod:`sim.optics.mask`) in the relay's image plane
 a + b + f_c            collimating lens, f_c
-a + b + f_c + p f_c/2  BK-7 prism at minimum deviation (:mod:`sim.prism`), folds the axis by δ
-… along δ              imaging lens + sensor (:mod:`sim.camera`): its aperture (the stop) lies
+a + b + f_c + p f_c/2  BK-7 prism at minimum deviation (:mod:`sim.optics.prism`), folds the axis by δ
+… along δ              imaging lens + sensor (:mod:`sim.optics.camera`): its aperture (the stop) lies
                        p·f_c (air-equivalent) behind the collimator, p = ``imaging_stop_fraction``
 =====================  =========================================================================
 
@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sim.variant import ensure_variant
+from sim.optics.variant import ensure_variant
 
 __all__ = ["SceneSpec", "build_scene", "TraceSetup", "trace_setup"]
 
@@ -54,8 +54,8 @@ class SceneSpec:
 
     def camera(self, design, film=None, crop=None, seed=0, spp=1,
                sampler: str = "independent") -> dict:
-        """The sensor dict (:func:`sim.camera.camera_dict`) for this scene."""
-        from sim.camera import camera_dict
+        """The sensor dict (:func:`sim.optics.camera.camera_dict`) for this scene."""
+        from sim.optics.camera import camera_dict
 
         return camera_dict(design, self.camera_position, self.camera_direction, film=film,
                            crop=crop, sampler_seed=seed, spp=spp, sampler=sampler)
@@ -68,7 +68,7 @@ def build_scene(design, cube_lhw: np.ndarray | None = None, wavelengths=None, *,
 
     Parameters
     ----------
-    design : sim.design.Design
+    design : sim.optics.design.Design
     cube_lhw : ndarray (L, H, W), optional
         Band-major radiance cube on the diffuser; None for a dark diffuser (transport tracing).
     wavelengths : array_like (L,), optional
@@ -90,7 +90,7 @@ def build_scene(design, cube_lhw: np.ndarray | None = None, wavelengths=None, *,
     if pupil_fraction is None:
         pupil_fraction = design.imaging_stop_fraction
     ensure_variant()
-    from sim import diffuser, kaleidoscope, lens, mask, prism
+    from sim.optics import diffuser, kaleidoscope, lens, mask, prism
 
     if lenses not in ("thin", "real"):
         from recon.errors import InputError
@@ -138,7 +138,7 @@ def build_scene(design, cube_lhw: np.ndarray | None = None, wavelengths=None, *,
     # The pupil sits on the axis ray at the collimator's back focal plane, the distance measured
     # along the folded axis with the glass path reduced by n (so the mask side is telecentric
     # and the pupil is centred on every beam: a decentred pupil vignettes one side).
-    from sim.glass import refractive_index
+    from sim.optics.glass import refractive_index
 
     n_c = float(refractive_index(design.prism_glass, design.prism_center_nm))
     left = pupil_fraction * fc - (entry_pt[2] - z_col) - glass_path / n_c
@@ -150,7 +150,7 @@ def build_scene(design, cube_lhw: np.ndarray | None = None, wavelengths=None, *,
 
 @dataclass
 class TraceSetup:
-    """A loaded instrument for the tracers (:func:`sim.rays.walk`): the Mitsuba scene, its
+    """A loaded instrument for the tracers (:func:`sim.optics.rays.walk`): the Mitsuba scene, its
     camera and the places the tracers record."""
 
     mi: object

@@ -6,7 +6,7 @@ is
 
 .. math:: \bar g = \sum_l q_l\, K_l * (T_l f_l),
 
-with :math:`T_l` the band's exact pixel integrals (:mod:`sim.transport`: mask, dispersion per
+with :math:`T_l` the band's exact pixel integrals (:mod:`sim.transport.exact`: mask, dispersion per
 view, the mirror geometry, vignetting and losses), :math:`K_l` its Airy kernel and :math:`q_l`
 the sensor's DN per unit irradiance (QE, pixel area, exposure, the band's width inside the
 filter, ADC gain).  :class:`ExactOperator` is that map restricted to the views' rectangles,
@@ -15,7 +15,7 @@ radiance_scale`` cut into the rectangles (:func:`oracle_measurements`) differs f
 the sensor's noise and quantisation.  This is the reference for "reconstruction from
 calibration is within 1 dB of the exact operator".
 
-It is traced with its own seed (:data:`sim.transport.SEEDS`): neither the captures' nor the
+It is traced with its own seed (:data:`sim.transport.exact.SEEDS`): neither the captures' nor the
 scene frames' realisation, though all three converge to the same optics.
 
 ``inversion=False`` composes every view with the mirror flips of its grid position, so every
@@ -23,7 +23,7 @@ view sees the scene upright: the same masks and dispersion without the dispersio
 the mirrored views (paper Fig. 8c), a hypothetical system.
 
 Each application runs view by view, as a frame does (:meth:`sim.frame.FrameModel.electrons`):
-the view's bands integrated exactly (:func:`sim.pixel_integral.band_forward`, bands on
+the view's bands integrated exactly (:func:`sim.transport.pixel_integral.band_forward`, bands on
 threads), then weighted, blurred and summed by FFT (:class:`sim.sensor.BlurredSum`: one
 transform a band and one a view); the adjoint blurs the measurement once a view and takes one
 inverse transform a band (:meth:`~sim.sensor.BlurredSum.adjoint`).  Only the views whose
@@ -78,8 +78,8 @@ class ExactOperator(LinearOperator):
 
     Parameters
     ----------
-    design : sim.design.Design
-    transport : sim.transport.Transport
+    design : sim.optics.design.Design
+    transport : sim.transport.exact.Transport
         Traced for the design's bands (box sampling).
     view_ids : sequence of int
         The views, in measurement order.
@@ -93,7 +93,7 @@ class ExactOperator(LinearOperator):
 
     def __init__(self, design, transport, view_ids, grid=None, *, inversion: bool = True,
                  diffraction: bool = True):
-        from sim.design import VIEW_GRID
+        from sim.optics.design import VIEW_GRID
         from sim.sensor import BlurredSum, airy_kernel
 
         v = design.view_size_px
@@ -130,7 +130,7 @@ class ExactOperator(LinearOperator):
         return np.ascontiguousarray(np.flip(img, axis=axes)) if axes else img
 
     def _forward(self, x):
-        from sim.transport import each
+        from sim.transport.exact import each
 
         dt = np.float64 if x.dtype == np.float64 else np.float32
         x32 = np.asarray(x, np.float32)
@@ -158,7 +158,7 @@ class ExactOperator(LinearOperator):
         return out.astype(dt)
 
     def _adjoint(self, y):
-        from sim.transport import each
+        from sim.transport.exact import each
 
         dt = np.float64 if y.dtype == np.float64 else np.float32
         bands = range(self.ishape[0])
@@ -246,18 +246,18 @@ def oracle_operator(design, n_views: int, *, inversion: bool = True, seed: int |
 
     Parameters
     ----------
-    design : sim.design.Design
+    design : sim.optics.design.Design
         Its ``views`` must include the first ``n_views`` ids (0..n-1).
     n_views : int
         1..9, views in the order centre, left, right, top, bottom, corners.
     inversion : bool
         ``False``: every view composed with its mirror flips (no dispersion inversion).
     seed : int, optional
-        The transport's realisation (default: the oracle's own, :data:`sim.transport.SEEDS`).
+        The transport's realisation (default: the oracle's own, :data:`sim.transport.exact.SEEDS`).
     grid : (H, W), optional
         The cube's grid (default the centre view's ``v × v``).
     """
-    from sim.transport import SEEDS, load_or_build
+    from sim.transport.exact import SEEDS, load_or_build
 
     ids = _view_ids(n_views, design)
     tr = load_or_build(design, design.wavelengths, seed=SEEDS["oracle"] if seed is None

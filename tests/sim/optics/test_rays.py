@@ -1,5 +1,5 @@
 """The ray walk images exactly: every aperture ray of a sensor point meets the mask and the
-diffuser at one point (Mitsuba's ``spawn_ray`` would blur it, see sim.rays)."""
+diffuser at one point (Mitsuba's ``spawn_ray`` would blur it, see sim.optics.rays)."""
 
 from __future__ import annotations
 
@@ -12,10 +12,10 @@ pytestmark = pytest.mark.mitsuba
 
 @pytest.mark.parametrize("view", [0, 1, 3])
 def test_a_sensor_point_sees_one_mask_point_and_one_diffuser_point(view):
-    from sim.design import get_design
-    from sim.maps import diffuser_coordinates, mask_coordinates
-    from sim.rays import sensor_rays, walk
-    from sim.scene import trace_setup
+    from sim.optics.design import get_design
+    from sim.transport.maps import diffuser_coordinates, mask_coordinates
+    from sim.optics.rays import sensor_rays, walk
+    from sim.optics.scene import trace_setup
 
     d = get_design("small")
     setup = trace_setup(d, open_mask=True)

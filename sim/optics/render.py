@@ -5,8 +5,8 @@ emitting the cube, mirrors, lenses, mask, prism) is rendered with Mitsuba's ``pa
 integrator through a ``specfilm`` whose response is a box on the band's wavelength interval
 (:func:`sim.bands.band_intervals`), cropped to the view's sensor rectangle. ``specfilm``
 records :math:`\\int L(\\lambda) r(\\lambda)\\, d\\lambda`; dividing by the box width gives the
-band's mean radiance through the aperture, and :func:`sim.camera.irradiance_factor` turns that
-into sensor irradiance.  The integrator is ``kaleidospec_path`` (:func:`sim.rays.register_integrator`):
+band's mean radiance through the aperture, and :func:`sim.optics.camera.irradiance_factor` turns that
+into sensor irradiance.  The integrator is ``kaleidospec_path`` (:func:`sim.optics.rays.register_integrator`):
 Mitsuba's backward path tracing through the delta interactions, continued along the ray instead
 of with ``spawn_ray``'s sideways step, which defocuses the optics by up to 1.4 px on ``paper``
 (``integrator="mitsuba"`` renders with Mitsuba's own ``path`` integrator, artefact included, to
@@ -15,7 +15,7 @@ sampler (stratified over the pixel, the aperture and the band) for a faster-conv
 reference.
 
 This is slow (~1 M samples/s on 2 cores) and exists to check the transport cache
-(:mod:`sim.transport`) and for one-off monochromatic captures.
+(:mod:`sim.transport.exact`) and for one-off monochromatic captures.
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ def render_direct(design, cube, wavelengths, spp: int = 16, seed: int = 0, *,
 
     Parameters
     ----------
-    design : sim.design.Design
+    design : sim.optics.design.Design
     cube : ndarray (H, W, L)
         Spectral radiance of the scene on the diffuser (before its transmittance).
     wavelengths : array_like (L,)
@@ -54,7 +54,7 @@ def render_direct(design, cube, wavelengths, spp: int = 16, seed: int = 0, *,
     crop : (row0, col0, h, w), optional
         Further restrict rendering to this window.
     lenses : {"thin", "real"}
-        Lens model (:func:`sim.scene.build_scene`).
+        Lens model (:func:`sim.optics.scene.build_scene`).
     windows : list of (row0, col0, h, w), optional
         Render exactly these sensor windows instead of the views' rectangles.
     mask_pattern : ndarray of bool, optional
@@ -65,9 +65,9 @@ def render_direct(design, cube, wavelengths, spp: int = 16, seed: int = 0, *,
         Mitsuba's ``independent`` or ``multijitter`` sampler.
     """
     from sim.bands import band_intervals, check_cube
-    from sim.camera import band_response, irradiance_factor
-    from sim.scene import build_scene
-    from sim.variant import ensure_variant
+    from sim.optics.camera import band_response, irradiance_factor
+    from sim.optics.scene import build_scene
+    from sim.optics.variant import ensure_variant
 
     samplers = {"independent": "independent", "stratified": "multijitter"}
     if integrator not in ("exact", "mitsuba"):
@@ -86,7 +86,7 @@ def render_direct(design, cube, wavelengths, spp: int = 16, seed: int = 0, *,
     spec = build_scene(design, np.ascontiguousarray(np.moveaxis(cube, 2, 0)), wl, lenses=lenses,
                        mask_pattern=mask_pattern)
     if integrator == "exact":
-        from sim.rays import register_integrator
+        from sim.optics.rays import register_integrator
 
         spec.scene["integrator"] = {"type": register_integrator(),
                                     "max_depth": spec.scene["integrator"]["max_depth"]}

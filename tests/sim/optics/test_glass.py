@@ -1,10 +1,10 @@
-"""sim.glass: Sellmeier indices, minimum deviation, total internal reflection."""
+"""sim.optics.glass: Sellmeier indices, minimum deviation, total internal reflection."""
 
 import numpy as np
 import pytest
 
 from recon.errors import InputError
-from sim import glass
+from sim.optics import glass
 
 
 @pytest.mark.parametrize("name, n_d, tol", [

@@ -11,7 +11,7 @@ pytestmark = pytest.mark.mitsuba
 
 @pytest.fixture()
 def cache(tmp_path, monkeypatch):
-    from sim import sampled
+    from sim.transport import sampled
 
     monkeypatch.setenv("KALEIDOSPEC_CACHE", str(tmp_path))
     sampled._MEMO.clear()
@@ -21,7 +21,7 @@ def cache(tmp_path, monkeypatch):
 
 @pytest.fixture(scope="module")
 def design():
-    from sim.design import get_design
+    from sim.optics.design import get_design
 
     return get_design("small")
 
@@ -40,7 +40,7 @@ def test_sobol_sampler_is_closer_to_the_converged_frame_than_independent(design,
     ones at the same count: the frame of a 16-sample Sobol trace is nearer a 256-sample
     reference than an independent 16-sample trace (by more than 15 %), and both are unbiased
     (same total)."""
-    from sim.sampled import load_or_build
+    from sim.transport.sampled import load_or_build
 
     d = design
     wl = d.wavelengths[[2, 8]]
@@ -66,7 +66,7 @@ def test_sobol_sampler_is_closer_to_the_converged_frame_than_independent(design,
 
 def test_sobol_sampler_is_deterministic_and_keyed_apart(design, cache):
     from recon.errors import InputError
-    from sim import sampled as transport
+    from sim.transport import sampled as transport
 
     d = design
     wl = d.wavelengths[[4]]
@@ -87,7 +87,7 @@ def test_sobol_sampler_is_deterministic_and_keyed_apart(design, cache):
 def test_sobol_samples_are_stratified_in_every_dimension():
     """Each pixel's 4 samples fall one in each quarter of every coordinate (after the
     pixel's toroidal shift, on the shifted grid)."""
-    from sim.sampled import pixel_samples
+    from sim.transport.sampled import pixel_samples
 
     n, spp = 50, 4
     draw = pixel_samples(n, spp, "sobol", np.random.default_rng(0))

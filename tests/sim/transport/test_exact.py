@@ -17,7 +17,7 @@ def cache(shared_cache):
 
 @pytest.fixture(scope="module")
 def design():
-    from sim.design import get_design
+    from sim.optics.design import get_design
 
     return get_design("small")
 
@@ -49,8 +49,8 @@ def test_transport_matches_mitsubas_path_tracer(design):
     """The pixel integrals against Mitsuba rendering the same scene through the instrument
     (stratified, 256 samples per pixel, two seeds): no bias beyond 0.5 % per pixel and band
     (the renders' own noise is ~2 %), the same total within 0.3 %."""
-    from sim.render import render_direct
-    from sim.transport import load_or_build
+    from sim.optics.render import render_direct
+    from sim.transport.exact import load_or_build
 
     d = design
     wl = d.wavelengths[[2, 8]]
@@ -70,8 +70,8 @@ def test_transport_matches_mitsubas_path_tracer(design):
 def test_transport_matches_the_sampled_transport_in_the_vignetted_view(design):
     """The left view's outer columns, where the tube's exit cuts the aperture (the analytic
     disc ∩ square of the throughput), against the Monte Carlo transport (Sobol, 256 samples)."""
-    from sim import sampled
-    from sim.transport import load_or_build
+    from sim.transport import sampled
+    from sim.transport.exact import load_or_build
 
     d = design
     wl = d.wavelengths[[9]]
@@ -92,11 +92,11 @@ def test_energy_is_conserved_up_to_the_elements_losses(design):
     """A uniform diffuser of radiance 1 at the centre wavelength, open mask: a pixel of the
     centre view (no mirror) receives exactly π/(1+4N²)·T_d·T_quartz·T_prism, in the direct
     render and in the transport alike; the mirrored views receive less (Al reflectance)."""
-    from sim.camera import irradiance_factor
-    from sim.glass import refractive_index
-    from sim.mask import quartz_transmittance
-    from sim.render import render_direct
-    from sim.transport import load_or_build
+    from sim.optics.camera import irradiance_factor
+    from sim.optics.glass import refractive_index
+    from sim.optics.mask import quartz_transmittance
+    from sim.optics.render import render_direct
+    from sim.transport.exact import load_or_build
 
     d = design
     lam = d.prism_center_nm
@@ -133,7 +133,7 @@ def test_energy_is_conserved_up_to_the_elements_losses(design):
 def test_independent_traces_agree(design):
     """Three realisations of the trace (the captures', the scenes' and the oracle's seeds)
     give the same frame to 3·10⁻⁴ (measured ~1·10⁻⁴: the maps' fit of float32 round-off)."""
-    from sim.transport import SEEDS, load_or_build
+    from sim.transport.exact import SEEDS, load_or_build
 
     d = design
     wl = d.wavelengths[[0, 5, 10]]
@@ -149,7 +149,7 @@ def test_independent_traces_agree(design):
 def test_the_scene_grid_does_not_change_the_integral(design):
     """The same content at the view's grid and repeated 2 × 2 (every texel split in four):
     the pixel integrals are equal, so the integral does not depend on how the scene is cut."""
-    from sim.transport import load_or_build
+    from sim.transport.exact import load_or_build
 
     d = design
     wl = d.wavelengths[[1, 6]]
@@ -163,7 +163,7 @@ def test_the_scene_grid_does_not_change_the_integral(design):
 
 
 def test_adjoint_of_every_view_and_band(design):
-    from sim.transport import load_or_build
+    from sim.transport.exact import load_or_build
 
     d = design
     tr = load_or_build(d, seed=0)
@@ -182,7 +182,7 @@ def test_adjoint_of_every_view_and_band(design):
 
 def test_frames_are_deterministic(design):
     from sim.frame import simulate_frame
-    from sim.render import render_direct
+    from sim.optics.render import render_direct
 
     d = design
     wl = d.wavelengths[[3, 6]]
@@ -210,7 +210,7 @@ def test_spp_belongs_to_direct_renders(design):
 
 
 def test_cache_is_written_once_and_reused(design, tmp_path, monkeypatch):
-    from sim import transport
+    from sim.transport import exact as transport
 
     monkeypatch.setenv("KALEIDOSPEC_CACHE", str(tmp_path))
     monkeypatch.setattr(transport, "_MEMO", {})
@@ -262,7 +262,7 @@ def test_threads_follow_the_cpus_the_process_may_use(monkeypatch, cpus):
     import os
     import threading
 
-    from sim.transport import each, ordered_sum
+    from sim.transport.exact import each, ordered_sum
 
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(cpus), raising=False)
     seen = []
@@ -286,7 +286,7 @@ def test_threads_follow_the_cpus_the_process_may_use(monkeypatch, cpus):
 def test_row_blocks_cover_the_rows_once_in_equal_shares(h, workers):
     """Every row in exactly one block, in order; blocks of at most 48 rows and within a row of
     each other; as many as a multiple of the threads wherever there are rows enough."""
-    from sim.transport import row_blocks
+    from sim.transport.exact import row_blocks
 
     blocks = row_blocks(h, workers)
     assert [r for a, b in blocks for r in range(a, b)] == list(range(h))

@@ -1,7 +1,7 @@
-"""The dispersive prism: a mesh of Sellmeier glass (:mod:`sim.dielectric`) at minimum deviation.
+"""The dispersive prism: a mesh of Sellmeier glass (:mod:`sim.optics.dielectric`) at minimum deviation.
 
 The glass refracts every path with the index :math:`n(\\lambda)` at the path's (hero)
-wavelength, so the prism spreads the bands along :math:`x` (:mod:`sim.dielectric` explains the
+wavelength, so the prism spreads the bands along :math:`x` (:mod:`sim.optics.dielectric` explains the
 hero wavelength and the Fresnel weight).
 
 :func:`prism_geometry` places a prism of apex angle :math:`A` at minimum deviation for the
@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim.dielectric import dispersive_dielectric, mesh_shape
-from sim.glass import min_deviation_incidence_rad
+from sim.optics.dielectric import dispersive_dielectric, mesh_shape
+from sim.optics.glass import min_deviation_incidence_rad
 
 __all__ = ["prism_geometry", "prism_shape"]
 

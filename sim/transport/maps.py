@@ -1,6 +1,6 @@
 r"""The optical maps of a design: where each sensor point looks, traced with Mitsuba.
 
-With ideal lenses every element after the diffuser images exactly (:mod:`sim.rays` explains why
+With ideal lenses every element after the diffuser images exactly (:mod:`sim.optics.rays` explains why
 the tracer must continue rays without Mitsuba's sideways ``spawn_ray`` step for that to hold):
 at wavelength :math:`\lambda` all rays from a sensor point :math:`s`, whatever point of the
 aperture they pass, cross the mask at one point :math:`m(s, \lambda)` and reach the diffuser at
@@ -17,7 +17,7 @@ depends on the aperture: a pixel receives
 with :math:`V` the fraction of the aperture whose rays pass the kaleidoscope's only stop, the
 tube's exit (the beam of a sensor point crosses the exit plane in an affine image of the
 aperture disc, :math:`b + A\,(u, v)`, so :math:`V` is the area of a disc cut by a parallelogram,
-:func:`sim.pixel_integral.disc_fraction`), and :math:`T` the mean throughput of the rays that pass
+:func:`sim.transport.pixel_integral.disc_fraction`), and :math:`T` the mean throughput of the rays that pass
 it (mirrors' reflectance, the prism's Fresnel losses, the quartz plate; smooth).
 
 :func:`trace_maps` traces, for every used view and every wavelength node, a jittered grid of
@@ -77,13 +77,13 @@ def panel_path_error(phi, t) -> float:
     r"""How far (px) the pixel integral's path across a panel leaves the dispersion
     :math:`\varphi(t)` (``phi`` at the panel parameters ``t`` in [0, 1], which include 0, ½
     and 1): the largest :math:`|t_q(\varphi) - t|\,|D|` of the path whose :math:`t_q` is
-    quadratic in the position through the panel's three nodes (:mod:`sim.pixel_integral`)."""
+    quadratic in the position through the panel's three nodes (:mod:`sim.transport.pixel_integral`)."""
     phi, t = np.asarray(phi, np.float64), np.asarray(t, np.float64)
     x0, xm, x1 = (float(np.interp(v, t, phi)) for v in (0.0, 0.5, 1.0))
     D = x1 - x0
     if abs(D) < 1e-12:
         return float(np.abs(phi - x0).max())
-    # sim.pixel_integral._panel_factors' κ, written here again: the kernels import this module
+    # sim.transport.pixel_integral._panel_factors' κ, written here again: the kernels import this module
     # (Legendre values), so this module may not import them.
     a = xm - x0
     kappa = (0.5 * D - a) / (D * a * (a - D))
@@ -174,8 +174,8 @@ def evaluate(coef, pr, pc) -> np.ndarray:
 # ---------------------------------------------------------------------------------- coordinates
 def mask_coordinates(design, xy) -> np.ndarray:
     """(2, n) continuous mask-cell coordinates (column m_x, row m_y) of mask-plane world points
-    ``xy`` (2, n), as the sensor sees the mask (:func:`sim.mask.cell_index` without the floor)."""
-    from sim.diffuser import SENSOR_FROM_DIFFUSER
+    ``xy`` (2, n), as the sensor sees the mask (:func:`sim.optics.mask.cell_index` without the floor)."""
+    from sim.optics.diffuser import SENSOR_FROM_DIFFUSER
 
     sx, sy = SENSOR_FROM_DIFFUSER
     M = design.mask_to_sensor
@@ -188,8 +188,8 @@ def mask_coordinates(design, xy) -> np.ndarray:
 
 def diffuser_coordinates(design, xy) -> np.ndarray:
     """(2, n) diffuser positions in units of the scene's side (0..1 across the cube, column
-    then row: :func:`sim.diffuser.cube_region` of any shape, divided by the side)."""
-    from sim.diffuser import cube_region
+    then row: :func:`sim.optics.diffuser.cube_region` of any shape, divided by the side)."""
+    from sim.optics.diffuser import cube_region
 
     reg = cube_region(design, (1, 1))
     return np.stack([(reg.sx * xy[0] - reg.x0) / reg.dx, (reg.sy * xy[1] - reg.y0) / reg.dy])
@@ -203,7 +203,7 @@ def trace_maps(design, nodes_nm, *, seed: int = 0, degree: int = 5, grid: int | 
 
     Parameters
     ----------
-    design : sim.design.Design
+    design : sim.optics.design.Design
     nodes_nm : array_like (N,)
         Wavelengths (nm) to trace at (:func:`band_nodes`).
     seed : int
@@ -216,9 +216,9 @@ def trace_maps(design, nodes_nm, *, seed: int = 0, degree: int = 5, grid: int | 
     aperture_rays : int
         Stratified aperture samples per point for the throughput T (a perfect square).
     """
-    from sim.design import VIEW_GRID
-    from sim.rays import sensor_rays, walk
-    from sim.scene import trace_setup
+    from sim.optics.design import VIEW_GRID
+    from sim.optics.rays import sensor_rays, walk
+    from sim.optics.scene import trace_setup
 
     t0 = time.perf_counter()
     nodes = np.asarray(nodes_nm, np.float64).ravel()
@@ -331,7 +331,7 @@ def trace_maps(design, nodes_nm, *, seed: int = 0, degree: int = 5, grid: int | 
     finally:
         if bar is not None:
             bar.close()
-    from sim.camera import irradiance_factor
+    from sim.optics.camera import irradiance_factor
 
     thr *= irradiance_factor(design) * design.diffuser_transmittance
     return OpticalMaps(design_hash=design.hash, views=views, nodes_nm=nodes, rects=rects,
@@ -342,14 +342,14 @@ def trace_maps(design, nodes_nm, *, seed: int = 0, degree: int = 5, grid: int | 
 
 
 def _slice(wk, sl):
-    from sim.rays import Walk
+    from sim.optics.rays import Walk
 
     return Walk(weight=wk.weight[sl], reached=wk.reached[sl], diffuser=wk.diffuser[:, sl],
                 mask=wk.mask[:, sl], exit=wk.exit[:, sl], walls=wk.walls[:, sl])
 
 
 def _concat(parts):
-    from sim.rays import Walk
+    from sim.optics.rays import Walk
 
     if len(parts) == 1:
         return parts[0]

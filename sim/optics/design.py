@@ -30,7 +30,7 @@ relay lens ``relay_gap_mm = 171`` mm behind the tube's exit: the smallest whole 
 which the grid fits (170 mm gives 3 × 903.3 px > 2704 px). A designer sweeping the mirror length
 (or the gap) finds the same boundary.
 
-*Dispersion.* :func:`sim.glass.dispersion_px`: the prism sits at minimum deviation for
+*Dispersion.* :func:`sim.optics.glass.dispersion_px`: the prism sits at minimum deviation for
 ``prism_center_nm``; band λ lands :math:`\\varphi(\\lambda) = f_{\\text{img}}
 \\tan(\\delta(\\lambda_c) - \\delta(\\lambda)) / \\Delta` pixels to the right of the centre band
 (longer wavelengths to larger columns).
@@ -115,7 +115,7 @@ class Design:
     #: Air-equivalent distance from the collimator to the imaging lens's aperture stop, in units
     #: of the collimator focal length (1: stop at its back focal plane, telecentric on the mask;
     #: smaller values move the entrance pupil toward the tube's exit and vignette the outer views
-    #: less; see :mod:`sim.scene`). The paper gives no stop position.
+    #: less; see :mod:`sim.optics.scene`). The paper gives no stop position.
     imaging_stop_fraction: float = 0.5
     # mask
     mask_pitch_um: float = 7.4
@@ -220,7 +220,7 @@ class Design:
                 "the relay lens cannot image the diffuser: mirror_length_mm + relay_gap_mm must "
                 "exceed relay_focal_mm"
             )
-        from sim import glass
+        from sim.optics import glass
         from sim.sensor import QE_CURVES
 
         if self.qe_curve not in QE_CURVES:
@@ -359,7 +359,7 @@ class Design:
     # ------------------------------------------------------------------ dispersion and blur
     def dispersion_px_at(self, wavelength_nm) -> np.ndarray:
         """φ(λ) in px relative to ``prism_center_nm`` (positive: towards larger columns)."""
-        from sim.glass import dispersion_px
+        from sim.optics.glass import dispersion_px
 
         return dispersion_px(self, wavelength_nm)
 
@@ -528,7 +528,7 @@ class Design:
         """Derived quantities as a JSON-ready dict (see the module docstring for the formulas)."""
         lo, hi = self.dispersion_range_px
         disp = self.dispersion_px
-        from sim.glass import apex_for_span
+        from sim.optics.glass import apex_for_span
 
         try:
             apex60 = apex_for_span(

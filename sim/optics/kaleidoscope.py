@@ -12,7 +12,7 @@ corners are reflected twice.
 
 from __future__ import annotations
 
-from sim.variant import ensure_variant
+from sim.optics.variant import ensure_variant
 
 __all__ = ["mirror_shapes"]
 
@@ -22,7 +22,7 @@ def mirror_shapes(design, z0: float = 0.0) -> dict:
 
     Parameters
     ----------
-    design : sim.design.Design
+    design : sim.optics.design.Design
         Uses ``tube_width_mm``, ``mirror_length_mm`` and ``mirror_material``.
     z0 : float
         z of the tube's entrance (the diffuser plane).

@@ -11,7 +11,7 @@ pytestmark = pytest.mark.mitsuba
 
 @pytest.fixture(scope="module")
 def design():
-    from sim.design import get_design
+    from sim.optics.design import get_design
 
     return get_design("small")
 
@@ -58,7 +58,7 @@ def _best_corr(img, ref, r, c, flip, search=8):
 
 
 def test_kaleidoscope_row_and_column_neighbours_are_mirror_images(design):
-    from sim.render import render_direct
+    from sim.optics.render import render_direct
 
     d = design.replace(views=(0, 1, 2, 3, 4))
     v = d.view_size_px
@@ -88,7 +88,7 @@ def test_kaleidoscope_row_and_column_neighbours_are_mirror_images(design):
 
 
 def test_dispersion_shift_matches_sellmeier_prediction(design):
-    from sim.render import render_direct
+    from sim.optics.render import render_direct
 
     d = design.replace(views=(0,))
     v = d.view_size_px

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from sim import pixel_integral as pi
+from sim.transport import pixel_integral as pi
 
 
 def test_disc_fraction_matches_monte_carlo():
@@ -55,7 +55,7 @@ def test_partition_holds_every_cell_and_texel_boundary():
 
 def _step_mean(x, a0, am, a1):
     """Mean over t ∈ [0, 1] of max(x − a(t), 0) for an edge on the pixel integral's path
-    through a0, am, a1 (t quadratic in a, by :func:`sim.pixel_integral._panel_factors`), in closed
+    through a0, am, a1 (t quadratic in a, by :func:`sim.transport.pixel_integral._panel_factors`), in closed
     form: ∫ (x − a)₊ t'(a) da with t'(a) = α + β a."""
     D = a1 - a0
     if abs(D) <= pi.STILL:
@@ -268,7 +268,7 @@ def test_row_polynomial_matches_numpy(D):
     """The kernels' polynomial along a row (the maps' degree 5 by Horner's rule in the
     monomial basis; any other degree from the tabulated values): Σ_b (Σ_a rv[a] c[a, b]) P_b(u),
     as numpy's Legendre series computes it, at columns' u in [-1, 1]."""
-    from sim.maps import legendre_values
+    from sim.transport.maps import legendre_values
 
     rng = np.random.default_rng(D)
     rv, c = rng.normal(size=D), rng.normal(size=(D, D))

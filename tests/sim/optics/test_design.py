@@ -1,4 +1,4 @@
-"""sim.design: paper defaults, stable hash, overrides, geometry, dispersion and the mask."""
+"""sim.optics.design: paper defaults, stable hash, overrides, geometry, dispersion and the mask."""
 
 import dataclasses
 import math
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from recon.errors import InputError
-from sim.design import PRESETS, VIEW_GRID, Design, get_design, parse_overrides
-from sim.glass import apex_for_span
+from sim.optics.design import PRESETS, VIEW_GRID, Design, get_design, parse_overrides
+from sim.optics.glass import apex_for_span
 
 # Schott N-BK7 Sellmeier coefficients as printed in DESIGN.md §1 (C in µm²).
 B = (1.03961212, 0.231792344, 1.01046945)
@@ -81,7 +81,7 @@ def test_defaults_are_the_papers_numbers():
 
 
 def test_hash_is_stable_across_processes():
-    code = "from sim.design import get_design as g; print(g('paper').hash, g('small').hash)"
+    code = "from sim.optics.design import get_design as g; print(g('paper').hash, g('small').hash)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split() == [PRESETS["paper"].hash, PRESETS["small"].hash]
     assert len(PRESETS["paper"].hash) == 16 and int(PRESETS["paper"].hash, 16) >= 0

@@ -1,7 +1,7 @@
 r"""Glass bodies: the dispersive (Sellmeier) dielectric BSDF and the triangle meshes that carry it.
 
 Mitsuba 3's ``dielectric`` has one index for all wavelengths. :class:`DispersiveDielectric`
-refracts with the Sellmeier index :math:`n(\lambda)` of the glass (:mod:`sim.glass`) at the
+refracts with the Sellmeier index :math:`n(\lambda)` of the glass (:mod:`sim.optics.glass`) at the
 path's wavelength, as a delta transmission with the unpolarised Fresnel transmittance
 :math:`1 - F` (reflections are not traced: they leave the optical path) and the radiance factor
 :math:`\eta_{ti}^2` (which cancels between the two faces).
@@ -13,7 +13,7 @@ averages the four) and happens once per path because only refraction is sampled 
 is convex, so every path enters it exactly once. Lenses made of the same BSDF after the prism
 use ``hero=False``.
 
-The prism (:mod:`sim.prism`) and the real lens singlets (:mod:`sim.lens`) are both
+The prism (:mod:`sim.optics.prism`) and the real lens singlets (:mod:`sim.optics.lens`) are both
 :func:`mesh_shape` bodies of this dielectric; it lives apart from either so that neither
 element imports the other.
 """
@@ -22,8 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim.glass import get_glass
-from sim.variant import delta_bsdf_base, ensure_variant, register_plugin
+from sim.optics.glass import get_glass
+from sim.optics.variant import delta_bsdf_base, ensure_variant, register_plugin
 
 __all__ = ["register", "dispersive_dielectric", "mesh_shape", "PLUGIN"]
 
@@ -83,7 +83,7 @@ def _dielectric_class(mi):
 
 
 def dispersive_dielectric(glass: str = "BK7", hero: bool = True, fresnel: bool = True) -> dict:
-    """Mitsuba dict of the Sellmeier dielectric for ``glass`` (see :mod:`sim.glass`)."""
+    """Mitsuba dict of the Sellmeier dielectric for ``glass`` (see :mod:`sim.optics.glass`)."""
     register()
     g = get_glass(glass)
     d = {"type": PLUGIN, "hero": bool(hero), "fresnel": bool(fresnel)}

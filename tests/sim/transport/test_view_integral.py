@@ -1,4 +1,4 @@
-"""sim.view_integral: every band of a view in one pass equals the per-band kernel, band by band;
+"""sim.transport.view_integral: every band of a view in one pass equals the per-band kernel, band by band;
 its bucket search counts breakpoints as a sorted search does."""
 
 from __future__ import annotations
@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from recon.errors import InputError
-from sim import pixel_integral as pi
-from sim import view_integral as vi
+from sim.transport import pixel_integral as pi
+from sim.transport import view_integral as vi
 
-#: Agreement with :func:`sim.pixel_integral.band_forward`, as a fraction of the view's peak:
+#: Agreement with :func:`sim.transport.pixel_integral.band_forward`, as a fraction of the view's peak:
 #: the two interpolate the footprints' y bounds differently (bounds between knots here, shares
 #: between pixel centres there); at most 3.5·10⁻⁵ is measured on ``paper`` and ``small``, with
 #: random and natural scenes, at the view grid and twice it.
@@ -68,7 +68,7 @@ def test_a_subset_of_bands_and_blocks_of_rows(small_transport):
         # The same sums, started at the first piece the bands' own edges reach.
         np.testing.assert_allclose(sub, full[bands], rtol=1e-6,
                                    atol=1e-9 * float(full.max()))
-    from sim.view_integral import view_forward
+    from sim.transport.view_integral import view_forward
 
     k, bands = 1, list(range(tr.n_bands))
     geom = tr.geometry(k, 0)
@@ -111,8 +111,8 @@ def test_a_subset_of_bands_and_blocks_of_rows(small_transport):
 def test_a_monochromatic_band(shared_cache):
     """One node (a band-pass capture at one wavelength): G at the edges, no segments."""
     pytest.importorskip("mitsuba")
-    from sim.design import get_design
-    from sim.transport import load_or_build
+    from sim.optics.design import get_design
+    from sim.transport.exact import load_or_build
 
     d = get_design("small")
     tr = load_or_build(d, intervals=[[552.0, 552.0]], seed=0)
@@ -131,9 +131,9 @@ def test_bands_cut_into_panels():
     its direct sum over the pieces and passes its dot test."""
     pytest.importorskip("mitsuba")
     from sim.bands import band_intervals
-    from sim.design import get_design
-    from sim.maps import band_nodes, trace_maps
-    from sim.transport import TRACE, Transport
+    from sim.optics.design import get_design
+    from sim.transport.maps import band_nodes, trace_maps
+    from sim.transport.exact import TRACE, Transport
 
     from .test_pixel_integral import _reference
 
@@ -172,7 +172,7 @@ def test_edges_out_of_order_are_clamped_to_their_rows_pieces(small_transport):
     row never wrote."""
     import copy
 
-    from sim.transport import Transport
+    from sim.transport.exact import Transport
 
     tr = small_transport
     assert all(tr.edges_ordered(k) for k in range(len(tr.views)))
@@ -182,7 +182,7 @@ def test_edges_out_of_order_are_clamped_to_their_rows_pieces(small_transport):
     # A column-quadratic term as large as half the slope: the edges of a row's first sixth
     # of columns run backwards, past its first piece.
     maps.mask[k, :, 0, 0, 2] += 0.5 * maps.mask[k, :, 0, 0, 1]
-    from sim.design import get_design
+    from sim.optics.design import get_design
 
     bent = Transport(get_design("small"), maps, tr.intervals, tr.band_nodes)
     assert not bent.edges_ordered(k) and bent.edges_ordered(0)

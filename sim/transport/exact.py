@@ -2,16 +2,16 @@ r"""The fast path: a design's optical maps, traced once, and frames as exact pix
 
 Every element between the diffuser and the sensor is specular and the system is linear in the
 scene, so a band's sensor image is a fixed linear map of the scene's band.  This module keeps
-that map in the form the physics gives it: the optical maps of :mod:`sim.maps` (where each
+that map in the form the physics gives it: the optical maps of :mod:`sim.transport.maps` (where each
 sensor point looks on the mask and the diffuser, at each wavelength node, and the throughput),
-traced with Mitsuba once per design, and the pixel integral of :mod:`sim.pixel_integral`, which
+traced with Mitsuba once per design, and the pixel integral of :mod:`sim.transport.pixel_integral`, which
 integrates every pixel's footprint over its area, the band, the mask cells and the scene's
-texels exactly (frames take every band of a view in one pass, :mod:`sim.view_integral`; the
+texels exactly (frames take every band of a view in one pass, :mod:`sim.transport.view_integral`; the
 exact operator and its adjoint go band by band).  A frame is then a deterministic integral,
 not a Monte Carlo draw: a capture and a scene frame made from it agree because the optics
 agree, and no calibration can learn a sampling pattern (there is none to learn).  How close it
 is to the converged direct render is measured by ``tools/bench_transport.py``;
-:mod:`sim.sampled` keeps the Monte Carlo transport as an independent cross-check.
+:mod:`sim.transport.sampled` keeps the Monte Carlo transport as an independent cross-check.
 
 A transport does not depend on the scene's resolution (the maps end on the diffuser in units of
 the scene's side), so one trace serves the calibration targets on the view's grid and scenes at
@@ -65,7 +65,7 @@ class Transport:
 
     Attributes
     ----------
-    maps : sim.maps.OpticalMaps
+    maps : sim.transport.maps.OpticalMaps
     intervals : (L, 2) ndarray
         Wavelength interval of every band (equal ends: monochromatic).
     band_nodes : list of int arrays
@@ -98,10 +98,10 @@ class Transport:
         return int(l)
 
     def geometry(self, k: int, l: int):
-        """:class:`sim.pixel_integral.RowGeometry` of view index ``k`` in band ``l``."""
+        """:class:`sim.transport.pixel_integral.RowGeometry` of view index ``k`` in band ``l``."""
         key = (k, l)
         if key not in self._geom:
-            from sim.pixel_integral import RowGeometry
+            from sim.transport.pixel_integral import RowGeometry
 
             self._geom[key] = RowGeometry(self.maps, k, self.band_nodes[l])
         return self._geom[key]
@@ -110,7 +110,7 @@ class Transport:
         """τ of view index ``k`` in band ``l`` at its pixel centres, (h, w) float32 (every
         band's, (L, h, w), when ``l`` is None)."""
         if k not in self._tau:
-            from sim.pixel_integral import throughput_images
+            from sim.transport.pixel_integral import throughput_images
 
             self._tau[k] = throughput_images(self.maps, k, self.band_nodes)
         return self._tau[k] if l is None else self._tau[k][l]
@@ -119,7 +119,7 @@ class Transport:
         """The x partition of view index ``k`` for a cube ``width`` texels wide."""
         key = (k, int(width))
         if key not in self._part:
-            from sim.pixel_integral import partition
+            from sim.transport.pixel_integral import partition
 
             lo, hi = np.inf, -np.inf
             for l in range(self.n_bands):
@@ -134,7 +134,7 @@ class Transport:
         wavelength node: :math:`x_j(r, e + 1) - x_j(r, e) > 10^{-9}` mask units for every
         pixel row :math:`r`, edge :math:`e` and node :math:`j` (far above the round-off of
         the kernels' own evaluation).  Then every edge lies among the pieces its row spans,
-        and :func:`sim.view_integral.view_forward` need not check it row by row."""
+        and :func:`sim.transport.view_integral.view_forward` need not check it row by row."""
         if k not in self._ordered:
             geom = self.geometry(k, 0)
             steps = np.diff(geom.pce, axis=0)
@@ -144,10 +144,10 @@ class Transport:
         return self._ordered[k]
 
     def buckets(self, k: int, width: int):
-        """:func:`sim.view_integral.buckets` of :meth:`partition` ``(k, width)``."""
+        """:func:`sim.transport.view_integral.buckets` of :meth:`partition` ``(k, width)``."""
         key = (k, int(width))
         if key not in self._buckets:
-            from sim.view_integral import buckets
+            from sim.transport.view_integral import buckets
 
             texel_pitch = 1.0 / (int(width) * float(self.maps.relay[k][1]))
             self._buckets[key] = buckets(self.partition(k, width)[0], texel_pitch)
@@ -156,7 +156,7 @@ class Transport:
     def view_bands(self, f, k: int, bands=None, out=None) -> np.ndarray:
         """Irradiance (La, h, w) of view index ``k`` in ``bands`` (all by default) from the
         scene's bands ``f`` (H, W, La), band-last: all bands in one pass over the rows
-        (:mod:`sim.view_integral`), blocks of rows on a thread per core.  The same as
+        (:mod:`sim.transport.view_integral`), blocks of rows on a thread per core.  The same as
         :meth:`view_band` band by band, to a few 10⁻⁵ of the peak.
 
         ``out``, when given, may be larger than (La, h, w): its top-left (h, w) of each band is
@@ -170,8 +170,8 @@ class Transport:
         without arguments, each integrating one block of rows into ``out`` (they write
         disjoint rows: any order, any threads).  For a caller that schedules other work
         between them (:meth:`sim.frame.FrameModel.electrons` blurs the previous view there)."""
-        from sim.pixel_integral import band_mean
-        from sim.view_integral import view_forward
+        from sim.transport.pixel_integral import band_mean
+        from sim.transport.view_integral import view_forward
 
         bands = list(range(self.n_bands)) if bands is None else [self._check_band(l)
                                                                   for l in bands]
@@ -206,7 +206,7 @@ class Transport:
 
     def view_band(self, f, k: int, l: int, out=None) -> np.ndarray:
         """Irradiance (h, w) of view index ``k`` in band ``l`` from the band image ``f`` (H, W)."""
-        from sim.pixel_integral import band_forward
+        from sim.transport.pixel_integral import band_forward
 
         l = self._check_band(l)
         return band_forward(f, self.code, self.views[k], self.maps.relay[k],
@@ -215,7 +215,7 @@ class Transport:
 
     def view_band_adjoint(self, e, k: int, l: int, shape, fbar=None) -> np.ndarray:
         """The adjoint of :meth:`view_band`: (H, W) float64 (accumulated into ``fbar``)."""
-        from sim.pixel_integral import band_adjoint
+        from sim.transport.pixel_integral import band_adjoint
 
         l = self._check_band(l)
         return band_adjoint(e, self.code, self.views[k], self.maps.relay[k],
@@ -319,7 +319,7 @@ def _key(design, intervals, seed) -> str:
 
 def build_transport(design, intervals, *, seed: int = 0, progress: bool = False) -> Transport:
     """Trace the optical maps for the band ``intervals`` (L, 2) (not cached)."""
-    from sim.maps import band_nodes, trace_maps
+    from sim.transport.maps import band_nodes, trace_maps
 
     iv = np.asarray(intervals, np.float64).reshape(-1, 2)
     if iv.size == 0 or np.any(iv[:, 1] < iv[:, 0]):
@@ -352,7 +352,7 @@ def _save(tr: Transport, path: Path) -> None:
 
 
 def _load(design, path: Path) -> Transport:
-    from sim.maps import OpticalMaps
+    from sim.transport.maps import OpticalMaps
 
     with np.load(path, allow_pickle=False) as z:
         if int(z["format"]) != _FORMAT or str(z["design_hash"]) != design.hash:

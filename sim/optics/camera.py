@@ -21,7 +21,7 @@ import math
 
 import numpy as np
 
-from sim.variant import ensure_variant
+from sim.optics.variant import ensure_variant
 
 __all__ = ["camera_dict", "irradiance_factor", "band_response", "FOCUS_DISTANCE_MM"]
 
@@ -51,7 +51,7 @@ def camera_dict(design, position, direction, film: dict | None = None,
 
     Parameters
     ----------
-    design : sim.design.Design
+    design : sim.optics.design.Design
         Sensor size and pixel, imaging focal length and f-number.
     position : sequence of 3 floats
         Centre of the imaging lens (world mm).

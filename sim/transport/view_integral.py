@@ -1,12 +1,12 @@
 r"""The pixel integral of every band of one view in one pass over its rows.
 
-:mod:`sim.pixel_integral` integrates one view in one band (:func:`~sim.pixel_integral.
+:mod:`sim.transport.pixel_integral` integrates one view in one band (:func:`~sim.transport.pixel_integral.
 band_forward`, with its exact adjoint for the exact operator).  A frame needs every band, and
 most of what a band's pass computes does not depend on the band: the row's cut into y gaps at
 mask-row and texel-row boundaries, which mask cells are open, the scene's texel under each
 piece, and where each pixel edge lies among the pieces at each wavelength node.  This kernel
 computes those once per row and carries all bands along (the same maths as
-:mod:`sim.pixel_integral`; its notes give it):
+:mod:`sim.transport.pixel_integral`; its notes give it):
 
 1. *Rows* (stage 1).  For each piece of the row's x partition and each band :math:`l`, the
    mean over the footprint's height :math:`[y_0^l, y_1^l]` of :math:`M_k f_l`, summed over
@@ -30,17 +30,17 @@ computes those once per row and carries all bands along (the same maths as
    row above (an edge moves by a small fraction of a piece from row to row: the step is
    almost always none), as the first band that reads the node there reads the table.  Each
    band then takes its mean of :math:`G` over each panel from :math:`GG` and :math:`GGG` at
-   the panel's ends (:func:`sim.pixel_integral.panel_mean`).  The table is indexed by piece,
+   the panel's ends (:func:`sim.transport.pixel_integral.panel_mean`).  The table is indexed by piece,
    not from the row's first piece, so an edge's piece is its row of the table: no clamp and
    no offset an edge, where the edges are in order along the row (every design's are,
-   :meth:`sim.transport.Transport.edges_ordered`; elsewhere each row checks them).
+   :meth:`sim.transport.exact.Transport.edges_ordered`; elsewhere each row checks them).
 
 Each row's lower pixel edge is the next row's upper one, so the footprints' y bounds are
 evaluated once per edge in a block of rows, not twice.
 
-The result equals :func:`~sim.pixel_integral.band_forward` band by band to a few 10⁻⁵ of the
+The result equals :func:`~sim.transport.pixel_integral.band_forward` band by band to a few 10⁻⁵ of the
 view's peak (the footprints' y bounds are interpolated where that kernel interpolates the
-shares; both are exact to the maps' 10⁻⁴ px; ``tests/sim/test_view_integral.py``) and, on
+shares; both are exact to the maps' 10⁻⁴ px; ``tests/sim/transport/test_view_integral.py``) and, on
 ``paper``, costs about half of what its 26 bands cost there (``tools/bench_transport.py``).
 """
 
@@ -49,7 +49,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, uint64
 
-from sim.pixel_integral import (CONTRACT, SIXTH, STILL, _mean_width, _open, _panel, _panel_mean_d,
+from sim.transport.pixel_integral import (CONTRACT, SIXTH, STILL, _mean_width, _open, _panel, _panel_mean_d,
                                 _poly_row, _row_gaps, _row_span, max_pieces)
 
 __all__ = ["KNOT", "Buckets", "buckets", "view_forward"]
@@ -106,7 +106,7 @@ def _count(x, xbp, start, x0, inv):
 @njit(cache=True, nogil=True, inline="always")
 def _table_ggg(Tl, p, d):
     """(GG, GGG) at ``d`` past the start of a band's table row ``p`` (g, G, GG, GGG there),
-    as :func:`sim.pixel_integral._ggg` evaluates its own arrays."""
+    as :func:`sim.transport.pixel_integral._ggg` evaluates its own arrays."""
     return (Tl[p, 2] + d * (Tl[p, 1] + 0.5 * d * Tl[p, 0]),
             Tl[p, 3] + d * (Tl[p, 2] + d * (0.5 * Tl[p, 1] + d * Tl[p, 0] * SIXTH)))
 
@@ -539,18 +539,18 @@ def view_forward(f, code, view, relay, part, bucket: Buckets, geom, cxn, cyl, ba
         The view owning each open mask cell (−1 chrome).
     view : int
     relay : (4,)
-        The view's mask → scene map (:func:`sim.pixel_integral.partition`).
+        The view's mask → scene map (:func:`sim.transport.pixel_integral.partition`).
     part : (xb, mcol, tcol)
-        :func:`sim.pixel_integral.partition` of the view for the cube's width.
+        :func:`sim.transport.pixel_integral.partition` of the view for the cube's width.
     bucket : Buckets
         :func:`buckets` of ``xb``.
-    geom : sim.pixel_integral.RowGeometry
+    geom : sim.transport.pixel_integral.RowGeometry
         Of the view (its row and column polynomials; its band's own fields are not read).
     cxn : (N, D, D)
         The mask-x polynomial at the nodes the bands use.
     cyl : (La, D, D)
         Each band's mask-y polynomial averaged over its nodes
-        (:func:`sim.pixel_integral.node_weights`).
+        (:func:`sim.transport.pixel_integral.node_weights`).
     band_nodes : list of int arrays
         Each band's nodes, as indices into ``cxn``.
     bands : (La,) int
@@ -561,7 +561,7 @@ def view_forward(f, code, view, relay, part, bucket: Buckets, geom, cxn, cyl, ba
         Written at ``rows`` (all rows by default), in its first ``w`` columns.
     ordered : bool
         The caller knows that every node's pixel edges are in order along every row
-        (:meth:`sim.transport.Transport.edges_ordered`), so no row checks that its edges lie
+        (:meth:`sim.transport.exact.Transport.edges_ordered`), so no row checks that its edges lie
         among its pieces.
     report : dict, optional
         Given, its ``"rows clamped"`` is set to how many rows had edges beyond their pieces

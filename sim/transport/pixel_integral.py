@@ -2,7 +2,7 @@ r"""The pixel integral: each pixel's footprint integrated exactly over mask cell
 
 A pixel :math:`p` of view :math:`k` records in band :math:`l` (interval :math:`[\lambda_0,
 \lambda_1]`) the mean, over its area and the band, of what it sees through the optics
-(:mod:`sim.maps`):
+(:mod:`sim.transport.maps`):
 
 .. math:: E_l(p) = \tau_l(p)\; \frac{1}{\lambda_1 - \lambda_0} \int_{\lambda_0}^{\lambda_1}
           \frac{1}{|p|} \int_p M_k\big(m(s, \lambda)\big)\, f_l\big(\alpha_k + \beta_k\,
@@ -32,7 +32,7 @@ its x-edges move along the prism's smooth dispersion curve.  The integral then s
 
    so that :math:`\overline{G} = \Delta GG / D + \kappa\,\big(2 (D\, GG(x_1) - \Delta GGG)
    - D\, \Delta GG\big)`.  A band is cut into :math:`S` equal *panels* (wavelength nodes
-   at their ends and middles, :func:`sim.maps.band_nodes`; one on the designs shipped), and
+   at their ends and middles, :func:`sim.transport.maps.band_nodes`; one on the designs shipped), and
 
    .. math:: E_l(p) = \tau_l(p)\, \frac{1}{S} \sum_{s=1}^{S}
              \frac{\overline{G}_s(b) - \overline{G}_s(a)}{\bar w_s},
@@ -44,9 +44,9 @@ its x-edges move along the prism's smooth dispersion curve.  The integral then s
    for 3·10⁻³: the edges are located at the panels' ends only.
 
 Nothing is sampled: the result is the integral itself, up to the maps' fit (~10⁻³ px) and the
-quadratic path of an edge across a panel (≤ ``tolerance_px`` of :func:`sim.maps.band_nodes`).
+quadratic path of an edge across a panel (≤ ``tolerance_px`` of :func:`sim.transport.maps.band_nodes`).
 :func:`band_forward` and its exact adjoint :func:`band_adjoint` (a dot test checks it) are
-Numba kernels for one view and one band (the exact operator's); :mod:`sim.view_integral` takes
+Numba kernels for one view and one band (the exact operator's); :mod:`sim.transport.view_integral` takes
 every band of a view in one pass (the frames').
 :math:`G`, :math:`GG` and :math:`GGG` are float64: they accumulate over a whole row (~2000
 pieces on ``paper``) and the differences taken between neighbouring edges would lose every
@@ -249,13 +249,13 @@ def throughput_images(maps, k: int, band_nodes) -> np.ndarray:
     r"""Every band's throughput τ at the pixel centres of view ``k``: (L, h, w) float32.
 
     τ is the mean over the band's wavelength nodes (:func:`node_weights`) of :math:`V\,T`
-    (:mod:`sim.maps`).  T is smooth (a low-order polynomial) and is interpolated bilinearly
+    (:mod:`sim.transport.maps`).  T is smooth (a low-order polynomial) and is interpolated bilinearly
     from a grid every :data:`COARSE_PX` pixels (error < 10⁻⁵ of T); V is 1 away from the
     stop's shadow, and wherever a coarse cell may be partly vignetted at any node of the band
     (its corners' disc images within the cell's variation of the square's edge) τ is evaluated
     exactly at every pixel.
     """
-    from sim.maps import evaluate, legendre_values
+    from sim.transport.maps import evaluate, legendre_values
 
     r0, c0, h, w = (int(v) for v in maps.rects[k])
     rc, sr, cc, sc = maps.norm[k]
@@ -349,7 +349,7 @@ class RowGeometry:
     """
 
     def __init__(self, maps, k: int, nodes):
-        from sim.maps import legendre_values
+        from sim.transport.maps import legendre_values
 
         r0, c0, h, w = (int(v) for v in maps.rects[k])
         rc, sr, cc, sc = maps.norm[k]
@@ -367,7 +367,7 @@ class RowGeometry:
 
     def x_range(self, margin: float = 2.0):
         """The mask-x span of the view's pixel edges at the band's nodes, widened by ``margin``."""
-        from sim.maps import evaluate
+        from sim.transport.maps import evaluate
 
         xs = np.stack([evaluate(c, self.prc[[0, -1]], self.pce[[0, -1]]) for c in self.cx])
         return float(xs.min()) - margin, float(xs.max()) + margin

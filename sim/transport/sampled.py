@@ -1,6 +1,6 @@
 """The Monte Carlo transport: every pixel sampled with random rays, kept as sparse matrices.
 
-The product renders with the converged transport (:mod:`sim.transport`); this one is the
+The product renders with the converged transport (:mod:`sim.transport.exact`); this one is the
 independent cross-check the tests and ``tools/bench_transport.py`` hold it against, and the
 measure of what a sampled simulator gets wrong (its draw).
 
@@ -18,14 +18,14 @@ we trace them once per band and keep, per band, the sparse matrix :math:`A_l` wi
 :math:`A_l[p, t] = \\frac{\\pi T_d}{(1+4N^2) S}\\sum_{s: t_s = t} \\tau_s` (duplicates merged).
 A frame is then :math:`E_l = A_l f_l` for every band: a gather and a ``bincount``.
 
-The tracer here (:func:`sim.rays.walk`) is independent of Mitsuba's path integrator, which is
-what makes the direct render (:mod:`sim.render`) a meaningful check of it. With the same sample
+The tracer here (:func:`sim.optics.rays.walk`) is independent of Mitsuba's path integrator, which is
+what makes the direct render (:mod:`sim.optics.render`) a meaningful check of it. With the same sample
 count the two estimate the same expectation; they differ only by Monte Carlo noise.
 
 How the S samples of a pixel are drawn is the ``sampler`` (:func:`pixel_samples`): i.i.d.
 (``independent``, the default) or randomised quasi-Monte Carlo (``sobol``), which stratifies
 every pixel's samples over its area and its band and lowers the per-pixel error of a frame at the
-same cost (``tests/sim/test_sampled.py``).
+same cost (``tests/sim/transport/test_sampled.py``).
 
 Cache files: ``<cache>/sampled-<design hash>-<key>.npz`` (``np.savez_compressed``, written to a
 temporary file in the same folder and renamed; read with ``allow_pickle=False``), where the key
@@ -47,7 +47,7 @@ import numpy as np
 from recon.errors import InputError
 from recon.kernels import cores
 from sim.bands import band_intervals
-from sim.transport import cache_dir
+from sim.transport.exact import cache_dir
 
 __all__ = [
     "Transport",
@@ -158,8 +158,8 @@ class Transport:
 
 
 def _trace_setup(design, shape):
-    from sim.diffuser import cube_region
-    from sim.scene import trace_setup
+    from sim.optics.diffuser import cube_region
+    from sim.optics.scene import trace_setup
 
     return trace_setup(design), cube_region(design, shape)
 
@@ -214,7 +214,7 @@ def trace_band(design, shape, interval, spp: int, seed: int = 0, pixels=None,
 
     Parameters
     ----------
-    design : sim.design.Design
+    design : sim.optics.design.Design
     shape : (H, W)
         Cube resolution on the diffuser (sets the texel grid).
     interval : (lo, hi)
@@ -235,8 +235,8 @@ def trace_band(design, shape, interval, spp: int, seed: int = 0, pixels=None,
     w : ndarray float32
         Σ τ_s · T_d · π/(1+4N²) / spp over the samples of that pair.
     """
-    from sim.camera import irradiance_factor
-    from sim.rays import sensor_rays, walk
+    from sim.optics.camera import irradiance_factor
+    from sim.optics.rays import sensor_rays, walk
 
     setup, region = _setup if _setup is not None else _trace_setup(design, shape)
     Ws = design.sensor_width_px

@@ -16,7 +16,7 @@ from the sensor back to the diffuser). The interaction is a delta transmission o
 ``transmittance`` (radiance is conserved along the bent ray, as étendue is).
 
 :func:`spherical_lens_mesh` builds a real biconvex singlet (two spherical caps and an edge) with
-trimesh for the ``dielectric`` BSDF or the Sellmeier glass of :mod:`sim.dielectric`; its normals
+trimesh for the ``dielectric`` BSDF or the Sellmeier glass of :mod:`sim.optics.dielectric`; its normals
 face outward, as Mitsuba's dielectric needs to tell inside from outside.
 """
 
@@ -24,8 +24,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim.dielectric import dispersive_dielectric, mesh_shape
-from sim.variant import delta_bsdf_base, ensure_variant, register_plugin
+from sim.optics.dielectric import dispersive_dielectric, mesh_shape
+from sim.optics.variant import delta_bsdf_base, ensure_variant, register_plugin
 
 __all__ = ["register", "thin_lens_bsdf", "lens_shape", "spherical_lens_mesh", "real_lens_shape",
            "PLUGIN"]
@@ -184,14 +184,14 @@ def spherical_lens_mesh(focal_mm: float, diameter_mm: float, n_glass: float = 1.
 def real_lens_shape(focal_mm: float, center, diameter_mm: float, glass: str = "BK7",
                     design_nm: float = 587.6, axis=(0.0, 0.0, 1.0), hero: bool = False):
     """A real equiconvex BK-7 (or other glass) singlet as a Mitsuba mesh with the dispersive
-    dielectric of :mod:`sim.dielectric` (so it shows chromatic aberration; ~1.6× slower than the
+    dielectric of :mod:`sim.optics.dielectric` (so it shows chromatic aberration; ~1.6× slower than the
     ideal thin lens), its axis rotated from +z onto ``axis``.
 
     ``hero`` stays False: the backward path meets the prism (which keeps only the first
     wavelength, once) before any lens, so the lens refracts with that same first wavelength
     and must not zero-and-reweight a second time.
     """
-    from sim.glass import refractive_index
+    from sim.optics.glass import refractive_index
 
     mesh = spherical_lens_mesh(focal_mm, diameter_mm, float(refractive_index(glass, design_nm)))
     v = np.asarray(mesh.vertices, dtype=np.float64)

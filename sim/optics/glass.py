@@ -195,7 +195,7 @@ def dispersion_px(design, wavelength_nm=None) -> np.ndarray:
 
     Parameters
     ----------
-    design : sim.design.Design
+    design : sim.optics.design.Design
         Uses ``prism_glass``, ``prism_apex_deg``, ``prism_center_nm``, ``imaging_focal_mm`` and
         ``sensor_pixel_um``.
     wavelength_nm : array_like, optional

@@ -3,7 +3,7 @@ r"""Following a ray through the instrument: the delta-path walk shared by every 
 Every element after the diffuser is a delta interaction (lens, mask, prism, mirror), so a
 path from the sensor to the diffuser is a walk: intersect, sample the element's BSDF (no
 choice is left to chance), continue.  :func:`walk` does that for a batch of rays and records
-what the tracers need: the path's throughput (hero wavelength, :mod:`sim.dielectric`), where it
+what the tracers need: the path's throughput (hero wavelength, :mod:`sim.optics.dielectric`), where it
 crosses the mask plate and where it reaches the diffuser, which mirrors it met, and where the
 segment leaving the relay lens crosses the tube's exit plane (the kaleidoscope's only stop).
 
@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.variant import ensure_variant, register_plugin
+from sim.optics.variant import ensure_variant, register_plugin
 
 __all__ = ["SPAWN_EPS", "continue_ray", "sensor_rays", "Walk", "walk", "register_integrator",
            "INTEGRATOR"]
@@ -85,8 +85,8 @@ def walk(setup, ray, *, max_depth: int = 24) -> Walk:
 
     Parameters
     ----------
-    setup : sim.scene.TraceSetup
-        The loaded scene and the planes to record (:func:`sim.scene.trace_setup`).
+    setup : sim.optics.scene.TraceSetup
+        The loaded scene and the planes to record (:func:`sim.optics.scene.trace_setup`).
     ray : mitsuba.Ray3f
         Rays leaving the sensor, with their wavelengths set.
     max_depth : int

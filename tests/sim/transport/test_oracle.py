@@ -6,8 +6,8 @@ import pytest
 
 from recon.errors import InputError
 from recon.operators.base import dot_test
-from sim.design import get_design
-from sim.oracle import oracle_measurements, oracle_operator
+from sim.optics.design import get_design
+from sim.transport.oracle import oracle_measurements, oracle_operator
 
 OVR = {"band_step_nm": 50.0}
 
@@ -59,7 +59,7 @@ def test_forward_predicts_the_rendered_frame(scene):
     """With the scene frames' own trace the operator is the frame's expectation (blur
     included): only quantisation separates them.  The oracle's own trace is another
     realisation of the same optics: within 3·10⁻⁴ of it."""
-    from sim.transport import SEEDS
+    from sim.transport.exact import SEEDS
 
     d, cube, frame, meta = scene
     assert meta["trace_seed"] == SEEDS["scene"] != SEEDS["oracle"]
