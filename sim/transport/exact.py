@@ -42,7 +42,7 @@ from recon.kernels import cores, each
 from sim.bands import band_intervals
 
 __all__ = ["Transport", "SEEDS", "cache_dir", "build_transport", "load_or_build",
-           "render_cached", "each", "ordered_sum", "STATS"]
+           "render_cached", "release", "each", "ordered_sum", "STATS"]
 
 #: Trace realisations: calibration captures, scene frames and the exact (oracle) operator.
 SEEDS = {"captures": 0, "scene": 1, "oracle": 2}
@@ -419,3 +419,13 @@ def render_cached(design, cube: np.ndarray, wavelengths, *, seed: int = 0,
     cube, wl = check_cube(design, cube, wavelengths)
     tr = load_or_build(design, wl, sampling=sampling, seed=seed, progress=progress)
     return tr.apply(cube)
+
+
+def release(seed: int | None = None) -> None:
+    """Drop the transports held in memory: all of them, or those traced with ``seed`` (a value
+    of :data:`SEEDS`); the cache folder keeps its files."""
+    if seed is None:
+        _MEMO.clear()
+        return
+    for key in [k for k, tr in _MEMO.items() if int(tr.maps.seed) == int(seed)]:
+        del _MEMO[key]

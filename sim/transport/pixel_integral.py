@@ -62,7 +62,10 @@ from numba import njit
 
 __all__ = ["disc_fraction", "throughput_images", "node_weights", "band_mean", "partition",
            "panel_mean", "band_forward", "band_adjoint", "RowGeometry", "COARSE_PX", "STILL",
-           "STRAIGHT"]
+           "STRAIGHT",
+           # The kernels' pieces that the view integral (sim.transport.view_integral) shares.
+           "CONTRACT", "SIXTH", "cell_open", "max_pieces", "mean_width", "panel_mean_d",
+           "panel_nodes", "poly_row", "row_gaps", "row_span"]
 
 
 # ------------------------------------------------------------------------------ vignetting
@@ -383,7 +386,7 @@ def _fold(rv, c, b):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _poly_row(rv, c, colT, out):
+def poly_row(rv, c, colT, out):
     r"""``out[e] = Σ_b (Σ_a rv[a] c[a, b]) P_b(u_e)``: a Legendre polynomial folded with one
     row's values ``rv`` first, then evaluated along the row, where ``colT[b, e]`` holds
     :math:`P_b(u_e)` (as :class:`RowGeometry`'s ``pceT`` and ``pccT``; ``colT[1]`` is
@@ -427,9 +430,9 @@ def _row_edges(r, prc, pre, pceT, pccT, cx, cy, X, Y0, Y1, XC):
     n = cx.shape[0]
     w = pccT.shape[1]
     for j in range(n):
-        _poly_row(prc[r], cx[j], pceT, X[j])
-    _poly_row(pre[r], cy, pccT, Y0)
-    _poly_row(pre[r + 1], cy, pccT, Y1)
+        poly_row(prc[r], cx[j], pceT, X[j])
+    poly_row(pre[r], cy, pccT, Y0)
+    poly_row(pre[r + 1], cy, pccT, Y1)
     for c in range(w):
         if Y1[c] < Y0[c]:
             Y0[c], Y1[c] = Y1[c], Y0[c]
@@ -454,7 +457,7 @@ SLIVER = 1e-7
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _row_gaps(ylo, yhi, ay, by, H, n_mask, pmr, ptr_, bounds):
+def row_gaps(ylo, yhi, ay, by, H, n_mask, pmr, ptr_, bounds):
     """Cut [ylo, yhi] at the mask-row and texel-row boundaries: each gap's mask row and texel
     row (−1 outside the mask or the cube) and its edges (``bounds``).  Returns the number of
     gaps (at most ``pmr.shape[0]``)."""
@@ -496,7 +499,7 @@ def _row_gaps(ylo, yhi, ay, by, H, n_mask, pmr, ptr_, bounds):
 @njit(cache=True, nogil=True)
 def _row_pieces(Y0, Y1, ay, by, H, n_mask, plen, pmr, ptr_, bounds, pfirst, plast):
     """Cut the row's y band at its mask-row and texel-row boundaries (lines shared by all its
-    pixels, :func:`_row_gaps`), and every pixel's share of its own span [Y0, Y1] in each gap,
+    pixels, :func:`row_gaps`), and every pixel's share of its own span [Y0, Y1] in each gap,
     and the first and last gap it meets (``pfirst``, ``plast``; its shares are 0 outside
     them); ``bounds`` (pmax + 1): scratch for the gaps' edges.  Returns the number of gaps."""
     w = Y0.shape[0]
@@ -505,7 +508,7 @@ def _row_pieces(Y0, Y1, ay, by, H, n_mask, plen, pmr, ptr_, bounds, pfirst, plas
     for c in range(w):
         ylo = min(ylo, Y0[c])
         yhi = max(yhi, Y1[c])
-    k = _row_gaps(ylo, yhi, ay, by, H, n_mask, pmr, ptr_, bounds)
+    k = row_gaps(ylo, yhi, ay, by, H, n_mask, pmr, ptr_, bounds)
     for c in range(w):
         y0, y1 = Y0[c], Y1[c]
         inv = 1.0 / (y1 - y0) if y1 > y0 else 0.0
@@ -524,7 +527,7 @@ def _row_pieces(Y0, Y1, ay, by, H, n_mask, plen, pmr, ptr_, bounds, pfirst, plas
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _row_span(X, xb):
+def row_span(X, xb):
     """(lo, hi): the pieces of the partition ``xb`` that the row's edges ``X`` (n, w+1) reach
     at any node (hi < lo: none)."""
     w = X.shape[1] - 1
@@ -585,14 +588,14 @@ STRAIGHT = 1e-3
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _open(code, view, mr, tr, mc):
+def cell_open(code, view, mr, tr, mc):
     """Whether the gap of mask row ``mr`` and texel row ``tr`` (−1: none) lets the scene
     through mask column ``mc`` into ``view``: a cell of the view's code, over the scene."""
     return mr >= 0 and tr >= 0 and code[mr, mc] == view
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _panel(s, n):
+def panel_nodes(s, n):
     """Panel ``s`` of a band with ``n`` nodes: the places of its first, middle and last node
     among them (all 0 for a monochromatic band's one node)."""
     return 2 * s, min(2 * s + 1, n - 1), min(2 * s + 2, n - 1)
@@ -628,11 +631,11 @@ def panel_mean(x0, xm, x1, GG0, GG1, GGG0, GGG1):
 
     the integral of :math:`G\, t'` written so that the large running integrals cancel first.
     """
-    return _panel_mean_d(x0, xm, x1, GG1 - GG0, GG1, GGG1 - GGG0)
+    return panel_mean_d(x0, xm, x1, GG1 - GG0, GG1, GGG1 - GGG0)
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _panel_mean_d(x0, xm, x1, dGG, GG1, dGGG):
+def panel_mean_d(x0, xm, x1, dGG, GG1, dGGG):
     """:func:`panel_mean` from the differences ΔGG, ΔGGG and GG₁."""
     inv_d, kap = _panel_factors(x0, xm, x1)
     D = x1 - x0
@@ -691,7 +694,7 @@ def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pceT, pccT, cx
         if w < 2:
             pa[0] = 0
             pb[0] = ng
-        lo, hi = _row_span(X, xb)
+        lo, hi = row_span(X, xb)
         if hi < lo:
             continue
         if not adjoint:
@@ -712,7 +715,7 @@ def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pceT, pccT, cx
                     for p in range(pa[c], pb[c]):
                         mr = pmr[p]
                         tr = ptr_[p]
-                        if _open(code, view, mr, tr, mc):
+                        if cell_open(code, view, mr, tr, mc):
                             a = plen[c, p]
                             acc += (a + t * (plen[c + 1, p] - a)) * f[tr, tc]
                 g[i] = acc
@@ -729,7 +732,7 @@ def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pceT, pccT, cx
                     ptr = max(k, lo)
                     GN[j, e], GN3[j, e] = _ggg(X[j, e], k, xb, g, G, GG, GGG, lo, hi)
             for s in range(npan):
-                j0, jm, j1 = _panel(s, n)
+                j0, jm, j1 = panel_nodes(s, n)
                 ptr = lo
                 for e in range(w + 1):
                     x0, x1 = X[j0, e], X[j1, e]
@@ -745,9 +748,9 @@ def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pceT, pccT, cx
             for c in range(w):
                 accv[c] = 0.0
             for s in range(npan):
-                j0, jm, j1 = _panel(s, n)
+                j0, jm, j1 = panel_nodes(s, n)
                 for c in range(w):
-                    wid = _mean_width(X, j0, jm, j1, c)
+                    wid = mean_width(X, j0, jm, j1, c)
                     accv[c] += (mG[s, c + 1] - mG[s, c]) / wid
             for c in range(w):
                 out[r, c] = tau[r, c] * accv[c] * inv_n
@@ -762,10 +765,10 @@ def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pceT, pccT, cx
                 for e in range(w + 1):
                     amG[s, e] = 0.0
             for s in range(npan):
-                j0, jm, j1 = _panel(s, n)
+                j0, jm, j1 = panel_nodes(s, n)
                 for c in range(w):
                     eb = out[r, c] * tau[r, c] * inv_n
-                    wid = _mean_width(X, j0, jm, j1, c)
+                    wid = mean_width(X, j0, jm, j1, c)
                     amG[s, c + 1] += eb / wid
                     amG[s, c] -= eb / wid
             for j in range(n):
@@ -778,7 +781,7 @@ def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pceT, pccT, cx
                     a = amG[s, e]
                     if a == 0.0:
                         continue
-                    j0, jm, j1 = _panel(s, n)
+                    j0, jm, j1 = panel_nodes(s, n)
                     x0, x1 = X[j0, e], X[j1, e]
                     if n > 1 and abs(x1 - x0) > STILL:
                         # panel_mean = (1/D + κD) GG₁ + (κD − 1/D) GG₀ − 2κ (GGG₁ − GGG₀).
@@ -825,13 +828,13 @@ def _kernel(f, code, view, relay, H, W, xb, mcol, tcol, prc, pre, pceT, pccT, cx
                     for p in range(pa[c], pb[c]):
                         mr = pmr[p]
                         tr = ptr_[p]
-                        if _open(code, view, mr, tr, mc):
+                        if cell_open(code, view, mr, tr, mc):
                             a = plen[c, p]
                             fbar[tr, tc] += ai * (a + t * (plen[c + 1, p] - a))
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _mean_width(X, j0, jm, j1, c):
+def mean_width(X, j0, jm, j1, c):
     """Pixel ``c``'s footprint width over a panel: Simpson's rule over its three nodes."""
     return ((X[j0, c + 1] - X[j0, c]) + 4.0 * (X[jm, c + 1] - X[jm, c])
             + (X[j1, c + 1] - X[j1, c])) * SIXTH

@@ -27,45 +27,35 @@ How the S samples of a pixel are drawn is the ``sampler`` (:func:`pixel_samples`
 every pixel's samples over its area and its band and lowers the per-pixel error of a frame at the
 same cost (``tests/sim/transport/test_sampled.py``).
 
-Cache files: ``<cache>/sampled-<design hash>-<key>.npz`` (``np.savez_compressed``, written to a
-temporary file in the same folder and renamed; read with ``allow_pickle=False``), where the key
-hashes the cube shape, samples per pixel, band intervals, views, seed and sampler. The cache
-folder is ``$KALEIDOSPEC_CACHE`` or ``~/.cache/kaleidospec``.
+It is built in memory when a check needs it and never cached: only the exact transport is
+(:func:`sim.transport.exact.load_or_build`).
 """
 
 from __future__ import annotations
 
-import hashlib
-import json
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from recon.errors import InputError
 from recon.kernels import cores
 from sim.bands import band_intervals
-from sim.transport.exact import cache_dir
 
 __all__ = [
     "Transport",
     "sensor_pixels",
     "trace_band",
     "build_transport",
-    "load_or_build",
-    "render_cached",
     "SAMPLERS",
     "check_sampler",
     "pixel_samples",
     "STATS",
 ]
 
-#: Counters for tests and benchmarks: how many bands were traced / loaded from disk.
-STATS = {"traced_bands": 0, "loaded": 0, "built": 0}
-
-_FORMAT = 1
+#: Counters for tests and benchmarks: how many bands and transports were traced.
+STATS = {"traced_bands": 0, "built": 0}
 
 
 def sensor_pixels(design, views=None, crop=None) -> np.ndarray:
@@ -100,7 +90,6 @@ class Transport:
     tex: list
     w: list
     build_seconds: float = 0.0
-    path: Path | None = None
     _seg: list | None = None
 
     def _matrix(self, l: int):
@@ -276,15 +265,6 @@ def trace_band(design, shape, interval, spp: int, seed: int = 0, pixels=None,
             wsum.astype(np.float32))
 
 
-def _key(design, shape, intervals, spp, seed, pixels_desc, sampler) -> str:
-    blob = json.dumps({
-        "format": _FORMAT, "design": design.hash, "shape": [int(s) for s in shape],
-        "intervals": np.round(np.asarray(intervals, np.float64), 6).tolist(), "spp": int(spp),
-        "seed": int(seed), "pixels": pixels_desc, "sampler": sampler,
-    }, sort_keys=True)
-    return hashlib.sha256(blob.encode()).hexdigest()[:16]
-
-
 def build_transport(design, shape, wavelengths=None, *, spp: int = 4, seed: int = 0,
                     sampling: str = "box", sampler: str = "independent", crop=None,
                     progress: bool = False) -> Transport:
@@ -314,83 +294,3 @@ def build_transport(design, shape, wavelengths=None, *, spp: int = 4, seed: int 
     return Transport(design.hash, (int(shape[0]), int(shape[1])),
                      (design.sensor_height_px, design.sensor_width_px), wl, iv, int(spp),
                      pix, tex, w, build_seconds=time.perf_counter() - t0)
-
-
-def _save(tr: Transport, path: Path) -> None:
-    from recon.io.atomic import atomic_path
-
-    arrays = {
-        "format": np.array(_FORMAT), "design_hash": np.array(tr.design_hash),
-        "shape": np.array(tr.shape, np.int64), "sensor": np.array(tr.sensor, np.int64),
-        "wavelengths": tr.wavelengths, "intervals": tr.intervals, "spp": np.array(tr.spp),
-        "build_seconds": np.array(tr.build_seconds),
-    }
-    for l in range(len(tr.pix)):
-        # Pixel indices are sorted: their differences are small and compress well.
-        arrays[f"dpix_{l}"] = np.diff(tr.pix[l], prepend=0).astype(np.int32)
-        arrays[f"tex_{l}"] = tr.tex[l]
-        arrays[f"w_{l}"] = tr.w[l]
-    with atomic_path(path) as tmp:
-        np.savez_compressed(tmp, **arrays)
-
-
-def _load(path: Path) -> Transport:
-    with np.load(path, allow_pickle=False) as z:
-        if int(z["format"]) != _FORMAT:
-            raise ValueError("old cache format")
-        L = int(z["wavelengths"].size)
-        pix = [np.cumsum(z[f"dpix_{l}"], dtype=np.int64).astype(np.int32) for l in range(L)]
-        return Transport(str(z["design_hash"]), tuple(int(v) for v in z["shape"]),
-                         tuple(int(v) for v in z["sensor"]), z["wavelengths"].copy(),
-                         z["intervals"].copy(), int(z["spp"]), pix,
-                         [z[f"tex_{l}"].copy() for l in range(L)],
-                         [z[f"w_{l}"].copy() for l in range(L)],
-                         build_seconds=float(z["build_seconds"]), path=path)
-
-
-_MEMO: dict[str, Transport] = {}
-
-
-def load_or_build(design, shape, wavelengths=None, *, spp: int = 4, seed: int = 0,
-                  sampling: str = "box", sampler: str = "independent", crop=None,
-                  progress: bool = False, use_disk: bool = True) -> Transport:
-    """The transport for this design/shape/bands: from memory, from the cache folder, or traced
-    (and then written to the cache folder atomically)."""
-    wl = design.wavelengths if wavelengths is None else np.asarray(wavelengths, np.float64)
-    iv = band_intervals(design, wl, sampling)
-    key = _key(design, shape, iv, spp, seed, [list(design.views), crop], sampler)
-    if key in _MEMO:
-        return _MEMO[key]
-    path = cache_dir() / f"sampled-{design.hash}-{key}.npz"
-    tr = None
-    if use_disk and path.exists():
-        try:
-            tr = _load(path)
-            STATS["loaded"] += 1
-        except (OSError, ValueError, KeyError):
-            tr = None  # a damaged or outdated file is simply rebuilt
-    if tr is None:
-        tr = build_transport(design, shape, wl, spp=spp, seed=seed, sampling=sampling,
-                             sampler=sampler, crop=crop, progress=progress)
-        if use_disk:
-            _save(tr, path)
-            tr.path = path
-    _MEMO[key] = tr
-    return tr
-
-
-def render_cached(design, cube: np.ndarray, wavelengths, *, spp: int = 4, seed: int = 0,
-                  sampling: str = "box", sampler: str = "independent", progress: bool = False,
-                  crop=None) -> np.ndarray:
-    """Per-band sensor irradiance (L, Hs, Ws) float32 of ``cube`` (H, W, L) from the cache.
-
-    ``wavelengths`` are the cube's band centres; they must be bands of the design (bands
-    outside the filter's pass band give dark images). The first call for a design/cube shape
-    traces the optics (:func:`load_or_build`); later calls are gathers.
-    """
-    from sim.bands import check_cube
-
-    cube, wl = check_cube(design, cube, wavelengths)
-    tr = load_or_build(design, cube.shape[:2], wl, spp=spp, seed=seed, sampling=sampling,
-                       sampler=sampler, crop=crop, progress=progress)
-    return tr.apply(cube)

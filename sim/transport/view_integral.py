@@ -49,10 +49,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, uint64
 
-from sim.transport.pixel_integral import (CONTRACT, SIXTH, STILL, _mean_width, _open, _panel, _panel_mean_d,
-                                _poly_row, _row_gaps, _row_span, max_pieces)
+from sim.transport.pixel_integral import (CONTRACT, SIXTH, STILL, cell_open, max_pieces,
+                                          mean_width, panel_mean_d, panel_nodes, poly_row,
+                                          row_gaps, row_span)
 
-__all__ = ["KNOT", "Buckets", "buckets", "view_forward"]
+__all__ = ["KNOT", "Buckets", "buckets", "view_forward", "kernel_address"]
 
 #: Mask units between the knots at which every band's footprint bounds are interpolated.
 KNOT = 2.0
@@ -244,25 +245,25 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
         # The pixel edges' mask x at every node, every band's footprint bounds in mask y at
         # the pixel centres, and the row's y gaps (shared by every band and pixel).
         for j in range(N):
-            _poly_row(prc[r], cxn[j], pceT, X[j])
+            poly_row(prc[r], cxn[j], pceT, X[j])
         # A row's lower pixel edge is the next row's upper one: each edge's bounds, and
         # their extremes, are evaluated once per block of rows.
         if r == r_start:
             for l in range(L):
-                _poly_row(pre[r], cyl[l], pccT, YE1[l])
+                poly_row(pre[r], cyl[l], pccT, YE1[l])
             e_lo, e_hi = _extremes(YE1, band_rows, ymn, ymx)
         YE0, YE1 = YE1, YE0
         for l in range(L):
-            _poly_row(pre[r + 1], cyl[l], pccT, YE1[l])
+            poly_row(pre[r + 1], cyl[l], pccT, YE1[l])
         n_lo, n_hi = _extremes(YE1, band_rows, ymn, ymx)
         ylo = min(e_lo, n_lo)
         yhi = max(e_hi, n_hi)
         e_lo, e_hi = n_lo, n_hi
-        ng = _row_gaps(ylo, yhi, ay, by, H, n_mask, pmr, ptr_, bounds)
+        ng = row_gaps(ylo, yhi, ay, by, H, n_mask, pmr, ptr_, bounds)
         if ng > 0 and bounds[ng] < yhi:
             stats[1] += 1             # more gaps than the scratch holds (a caller's error)
         stats[0] = max(stats[0], ng)
-        lo, hi = _row_span(X, xb)
+        lo, hi = row_span(X, xb)
         if hi < lo:
             # No piece under the row: dark.  (Every other row writes every pixel at its end.)
             for l in range(L):
@@ -363,7 +364,7 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
                 # A piece whose footprint meets no cell open to this view adds nothing: its
                 # bands' bounds and heights are not needed (two pieces in five on `paper`).
                 for p in range(gk_lo[q], gk_hi[q]):
-                    if _open(code, view, pmr[p], ptr_[p], mc):
+                    if cell_open(code, view, pmr[p], ptr_[p], mc):
                         lit = True
                         break
                 if lit:
@@ -384,7 +385,7 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
                     for p in range(gk_lo[q], gk_hi[q]):
                         mr = pmr[p]
                         tr = ptr_[p]
-                        if _open(code, view, mr, tr, mc):
+                        if cell_open(code, view, mr, tr, mc):
                             ba = bounds[p]
                             bb = bounds[p + 1]
                             for l in range(L):
@@ -458,7 +459,7 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
                 for c in range(w):
                     accv[c] = 0.0
             for s in range(npan):
-                i0, im, i1 = _panel(s, n)
+                i0, im, i1 = panel_nodes(s, n)
                 j0, jm, j1 = bnodes[b0 + i0], bnodes[b0 + im], bnodes[b0 + i1]
                 if stamp[j0] != r:
                     _locate(X[j0], PA[j0], xlim)
@@ -503,7 +504,7 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
                         dG3[e] = G3e - G3a
                 n_still = 0
                 for e in range(w + 1):
-                    mG[e] = _panel_mean_d(X[j0, e], X[jm, e], X[j1, e], dGG[e], GG1[e], dG3[e])
+                    mG[e] = panel_mean_d(X[j0, e], X[jm, e], X[j1, e], dGG[e], GG1[e], dG3[e])
                     n_still += not abs(X[j1, e] - X[j0, e]) > STILL
                 if n_still:
                     # An edge that stands still (a monochromatic band's): G at the edge.
@@ -516,11 +517,11 @@ def _kernel(f, code, view, relay, H, xb, mcol, tcol, xbp, start, x0, inv, prc, p
                     # One panel: the pixels' sums written straight out (0 + v: the same bits
                     # as summed into zeros).
                     for c in range(w):
-                        v = 0.0 + (mG[c + 1] - mG[c]) / _mean_width(X, j0, jm, j1, c)
+                        v = 0.0 + (mG[c + 1] - mG[c]) / mean_width(X, j0, jm, j1, c)
                         out[l, r, c] = tau[bl, r, c] * v
                 else:
                     for c in range(w):
-                        accv[c] += (mG[c + 1] - mG[c]) / _mean_width(X, j0, jm, j1, c)
+                        accv[c] += (mG[c + 1] - mG[c]) / mean_width(X, j0, jm, j1, c)
             if npan > 1:
                 inv_n = 1.0 / npan
                 for c in range(w):
@@ -588,3 +589,13 @@ def view_forward(f, code, view, relay, part, bucket: Buckets, geom, cxn, cyl, ba
     if stats[1]:
         raise RuntimeError(f"{int(stats[1])} rows have more y gaps than the {pmax} expected")
     return out
+
+
+def kernel_address() -> int:
+    """Where the compiled kernel of :func:`view_forward` starts in memory (its machine code,
+    for a profiler that maps samples to its loops); :func:`view_forward` must have run once in
+    this process."""
+    if not _kernel.signatures:
+        raise RuntimeError("the view kernel is not compiled yet: run view_forward first")
+    compiled = _kernel.overloads[_kernel.signatures[0]]
+    return compiled.library.get_pointer_to_function(compiled.fndesc.llvm_func_name)

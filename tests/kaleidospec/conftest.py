@@ -43,9 +43,9 @@ def tiny(tmp_path_factory):
 
     old = os.environ.get("KALEIDOSPEC_CACHE")
     os.environ["KALEIDOSPEC_CACHE"] = str(tmp_path_factory.mktemp("cache"))
-    transport._MEMO.clear()
+    transport.release()
     yield get_design("small", TINY)
-    transport._MEMO.clear()
+    transport.release()
     if old is None:
         os.environ.pop("KALEIDOSPEC_CACHE", None)
     else:

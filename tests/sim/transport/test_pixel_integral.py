@@ -275,7 +275,7 @@ def test_row_polynomial_matches_numpy(D):
     u = np.concatenate([[-1.0, 1.0], rng.uniform(-1, 1, 55)])
     colT = np.ascontiguousarray(legendre_values(u, D - 1).T)
     out = np.full(u.size, np.nan)
-    pi._poly_row(rv, c, colT, out)
+    pi.poly_row(rv, c, colT, out)
     want = np.polynomial.legendre.legval(u, rv @ c)
     np.testing.assert_allclose(out, want, rtol=1e-13, atol=1e-13 * np.abs(rv @ c).sum())
 
@@ -293,7 +293,7 @@ def test_row_gaps_cut_once_at_every_boundary(ay, by, H, ylo, yhi):
     n_mask, pmax = 1720, 128
     pmr, ptr = np.zeros(pmax, np.int64), np.zeros(pmax, np.int64)
     bounds = np.empty(pmax + 1)
-    ng = pi._row_gaps(ylo, yhi, ay, by, H, n_mask, pmr, ptr, bounds)
+    ng = pi.row_gaps(ylo, yhi, ay, by, H, n_mask, pmr, ptr, bounds)
     t = np.sort((ay + by * np.array([ylo, yhi])) * H)
     texel = (np.arange(np.floor(t[0]), np.ceil(t[1]) + 1) / H - ay) / by
     cuts = np.concatenate([np.arange(np.ceil(ylo), yhi), texel])
