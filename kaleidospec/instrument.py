@@ -40,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
+from recon.calibration.views import VIEW_ORDER
 from recon.errors import InputError
 from sim.bands import band_intervals
 from sim.captures import CHECKER_NM, comb_captures, render_captures
@@ -47,13 +48,13 @@ from sim.optics.design import Design, get_design, parse_overrides
 from sim.frame import ground_truth, simulate_frame, write_frame
 from sim.optics.glass import apex_for_span
 from sim.measure import measure_all as measure_design
-from sim.transport.oracle import VIEW_ORDER, oracle_measurements, oracle_operator
+from sim.transport.oracle import oracle_measurements, oracle_operator
 
 __all__ = [
-    "VIEW_ORDER", "Design", "get_design", "parse_overrides", "design_for_views", "design_of",
+    "Design", "get_design", "parse_overrides", "design_for_views", "design_of",
     "render_scene", "scene_cube", "grid_on_scene", "view_answers", "simulate_frame",
     "write_frame", "ground_truth", "FrameRenderer", "animation", "render_captures",
-    "comb_captures", "CHECKER_NM",
+    "comb_captures", "noise_free_whites", "CHECKER_NM",
     "band_intervals", "band_mean_dispersion", "oracle_operator", "oracle_measurements",
     "measure_design", "apex_for_span", "cache_dir", "limit_threads", "release_transports",
 ]
@@ -210,6 +211,30 @@ class FrameRenderer:
                               scene_shape=self.shape, sampling=self.sampling,
                               diffraction=self.diffraction, noise=noise,
                               radiance_scale=radiance_scale)
+
+
+def noise_free_whites(design, view_boxes) -> np.ndarray:
+    """Every band's band-pass white rendered without noise and without the Airy blur through
+    the calibration captures' trace (:data:`sim.transport.exact.SEEDS`), cropped to
+    ``view_boxes`` (K, 4): (K, L, Hv, Wm) float32 photo-electrons.  What a perfect
+    deconvolution of noise-free white captures would give: the simulator's own mask images,
+    once normalised (:func:`recon.calibration.mask.normalise_mask_images`)."""
+    from recon.calibration.mask import view_stack
+    from scenes.calibration import white
+    from sim.frame import FrameModel
+    from sim.transport.exact import SEEDS
+
+    wl = design.wavelengths
+    cube = white((design.view_size_px,) * 2, wl)
+    model = FrameModel(design, wl, trace_seed=SEEDS["captures"], diffraction=False)
+    boxes = np.asarray(view_boxes)
+    out = np.empty((len(boxes), wl.size, int(boxes[0, 2]), int(boxes[0, 3])), np.float32)
+    band = np.zeros_like(cube)
+    for l in range(wl.size):
+        band[:, :, l] = cube[:, :, l]
+        out[:, l] = view_stack(model.electrons(band)[None], boxes)[:, 0]
+        band[:, :, l] = 0.0
+    return out
 
 
 def animation(scene, design, *, n_frames=None, fps: float = 10.0, subframes: int = 1,
@@ -370,9 +395,4 @@ def release_transports(which: str | None = None) -> None:
     captures' once a calibration has them (0.4 GB for the paper design)."""
     from sim.transport import exact as transport
 
-    if which is None:
-        transport._MEMO.clear()
-        return
-    seed = transport.SEEDS[which]
-    for key in [k for k, tr in transport._MEMO.items() if int(tr.maps.seed) == seed]:
-        del transport._MEMO[key]
+    transport.release(None if which is None else transport.SEEDS[which])

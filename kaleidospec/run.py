@@ -93,6 +93,7 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
     from kaleidospec.reconstruct import (check_oracle_solver, first_views, reconstruct_oracle,
                                          reconstruct_views)
     from recon.calibration import check_design
+    from recon.calibration.views import VIEW_ORDER
     from recon.io.atomic import atomic_dir, check_output, output_parents
     from recon.io.cubes import write_cube
     from recon.io.raw import write_raw
@@ -126,7 +127,7 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
                              f"the calibration is for design {design.hash}")
         if np.shape(frame) != (design.sensor_height_px, design.sensor_width_px):
             raise InputError(f"raw frame shape {np.shape(frame)} is not the design's sensor")
-    need = instrument.VIEW_ORDER[:max(counts)]
+    need = VIEW_ORDER[:max(counts)]
     missing = [v for v in need if v not in design.views]
     if missing:
         raise InputError(f"view(s) {missing} missing: the design traces views "

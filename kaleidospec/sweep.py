@@ -312,39 +312,6 @@ class SweepResult:
     summary: list[str] = field(default_factory=list)
 
 
-def _local_map(fn, payloads, workers: int, threads: int):
-    """Yield results as they finish, from a spawn process pool (or in-process for 1 worker)."""
-    from kaleidospec.instrument import limit_threads
-
-    if workers <= 1:
-        limit_threads(threads)
-        for p in payloads:
-            yield fn(p)
-        return
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-
-    # spawn: drjit/LLVM state must not be forked.
-    with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
-                             initializer=limit_threads, initargs=(threads,)) as ex:
-        futs = [ex.submit(fn, p) for p in payloads]
-        for f in as_completed(futs):
-            yield f.result()
-
-
-def _dask_map(fn, payloads, scheduler: str):
-    """Yield results as they finish, from a Dask cluster (``dask.distributed``, lazily)."""
-    try:
-        from dask.distributed import Client, as_completed
-    except ImportError:
-        raise InputError("--scheduler needs dask.distributed (pip install 'distributed'); "
-                         "without --scheduler the sweep runs in a local process pool") from None
-    with Client(scheduler) as client:
-        futs = client.map(fn, payloads, pure=False)
-        for f in as_completed(futs):
-            yield f.result()
-
-
 def run_sweep(settings: SweepSettings, values, out_dir, *, workers: int | None = None,
               scheduler: str | None = None, plot: bool = True,
               log: Callable[[str], None] | None = print) -> SweepResult:
@@ -393,13 +360,13 @@ def run_sweep(settings: SweepSettings, values, out_dir, *, workers: int | None =
     say(f"{settings.kind}: {len(payloads)} points, {reused} already done or invalid, "
         f"{len(todo)} to compute" + (f" on {scheduler}" if scheduler and todo else ""))
     if todo:
-        if scheduler:
-            it = _dask_map(evaluate_point, todo, scheduler)
-        else:
-            cores = kernels.cores()
-            w = max(1, min(int(workers or cores), len(todo)))
-            threads = max(1, cores // w)
-            it = _local_map(evaluate_point, todo, w, threads)
+        from kaleidospec.instrument import limit_threads
+        from kaleidospec.parallel import map_unordered
+
+        cores = kernels.cores()
+        w = max(1, min(int(workers or cores), len(todo)))
+        it = map_unordered(evaluate_point, [(p,) for p in todo], workers=w, scheduler=scheduler,
+                           initializer=limit_threads, initargs=(max(1, cores // w),))
         done = 0
         for r in it:
             done += 1

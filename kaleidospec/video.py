@@ -277,18 +277,6 @@ def plan_segments(n_frames: int, segment_frames: int) -> list[list[int]]:
     return [[a, min(a + s, n)] for a in range(0, n, s)]
 
 
-def _dask_client(address: str):
-    try:
-        from dask.distributed import Client
-    except ImportError:
-        raise InputError("--scheduler needs dask.distributed, which is not installed "
-                         "(pip install 'dask[distributed]')") from None
-    try:
-        return Client(address, timeout="10s")
-    except (OSError, TimeoutError) as err:
-        raise InputError(f"cannot reach the Dask scheduler at {address} ({err})") from None
-
-
 def reconstruct_sequence(out_dir, n_frames: int, segments, settings: dict, *,
                          workers: int | None = None, scheduler: str | None = None,
                          progress: bool = True, poll_s: float = 0.2) -> dict:
@@ -335,43 +323,15 @@ def reconstruct_sequence(out_dir, n_frames: int, segments, settings: dict, *,
             for a, b in pending:
                 results.append(reconstruct_segment(out_dir, a, b, s,
                                                    on_frame=lambda i: tick()))
-        elif backend == "processes":
-            import multiprocessing as mp
-            from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-
-            # spawn: the parent may hold Mitsuba/LLVM threads, which fork would copy broken.
-            with ProcessPoolExecutor(max_workers=nproc, mp_context=mp.get_context("spawn")) as ex:
-                futs = {ex.submit(reconstruct_segment, str(out_dir), a, b, s) for a, b in pending}
-                while futs:
-                    finished, futs = wait(futs, timeout=poll_s, return_when=FIRST_COMPLETED)
-                    for f in finished:
-                        results.append(f.result())
-                    tick()
         else:
-            from concurrent.futures import FIRST_COMPLETED
+            from kaleidospec.parallel import map_unordered
 
-            client = _dask_client(scheduler)
-            try:
-                from dask.distributed import wait as dwait
-
-                futs = [client.submit(reconstruct_segment, str(Path(out_dir).resolve()), a, b, s,
-                                      pure=False) for a, b in pending]
-                remaining = set(futs)
-                while remaining:
-                    try:
-                        res = dwait(list(remaining), timeout=poll_s,
-                                    return_when=FIRST_COMPLETED)
-                    except TimeoutError:
-                        # Dask's wait raises when nothing finished within the poll interval
-                        # (unlike concurrent.futures.wait): show the progress, wait again.
-                        tick()
-                        continue
-                    for f in res.done:
-                        results.append(f.result())
-                    remaining = set(res.not_done)
-                    tick()
-            finally:
-                client.close()
+            # Dask's workers may run elsewhere: they get the folder's absolute path.
+            folder = str(Path(out_dir).resolve()) if backend == "dask" else str(out_dir)
+            results.extend(map_unordered(reconstruct_segment,
+                                         [(folder, a, b, s) for a, b in pending],
+                                         workers=nproc, scheduler=scheduler, poll_s=poll_s,
+                                         on_poll=tick))
     finally:
         if bar is not None:
             tick()

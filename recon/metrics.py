@@ -317,13 +317,15 @@ def _render(cube, wavelengths, white, peak, gamma):
     return rgb, peak
 
 
-def cube_to_srgb(cube, wavelengths, *, white="flat", peak=None, gamma: float = 2.2) -> np.ndarray:
+def cube_to_srgb(cube, wavelengths, *, white="flat", peak=None,
+                 gamma: float | str = 2.2) -> np.ndarray:
     r"""Display sRGB rendering of a radiance cube, values in [0, 1].
 
     Steps: :func:`cube_to_xyz`; exposure: divide by ``peak`` (default: the 99th percentile of
     Y, so a few hot pixels do not darken the image); white balance by a Bradford adaptation from
     the chosen scene white to D65; the sRGB (linear) primaries; clip to [0, 1]; display encoding
-    :math:`v^{1/\gamma}` with :math:`\gamma = 2.2`.
+    :math:`v^{1/\gamma}` with :math:`\gamma = 2.2`, or the sRGB curve of IEC 61966-2-1
+    (:math:`12.92\,v` up to :math:`v = 0.0031308`, :math:`1.055\,v^{1/2.4} - 0.055` above).
 
     Parameters
     ----------
@@ -334,15 +336,22 @@ def cube_to_srgb(cube, wavelengths, *, white="flat", peak=None, gamma: float = 2
         an explicit XYZ triple.
     peak : float, optional
         Luminance mapped to 1.
-    gamma : float
-        Display gamma (1 gives linear sRGB).
+    gamma : float or "srgb"
+        Display gamma (1 gives linear sRGB), or ``"srgb"``: the standard's encoding curve
+        (what an sRGB file's values mean).
 
     Returns
     -------
     rgb : float32 array (H, W, 3)
     """
-    rgb, _ = _render(cube, wavelengths, white, peak, gamma)
-    return np.power(rgb, 1.0 / gamma).astype(np.float32)
+    if isinstance(gamma, str) and gamma != "srgb":
+        raise InputError(f"gamma must be a number or 'srgb', not {gamma!r}")
+    rgb, _ = _render(cube, wavelengths, white, peak, 1.0)
+    if gamma == "srgb":
+        rgb = np.where(rgb <= 0.0031308, 12.92 * rgb, 1.055 * rgb ** (1 / 2.4) - 0.055)
+    else:
+        rgb = np.power(rgb, 1.0 / gamma)
+    return rgb.astype(np.float32)
 
 
 def delta_e2000(cube_a, cube_b, wavelengths, *, white="flat", peak=None):

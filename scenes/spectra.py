@@ -1,8 +1,9 @@
-"""Spectral data for scenes: illuminants, measured reflectances, spectral upsampling, display.
+"""Spectral data for scenes: illuminants, measured reflectances, spectral upsampling.
 
 All data come from colour-science and are resampled by linear interpolation onto the requested
 band centres (nm). Scenes are *relative spectral radiance* = reflectance × illuminant, with the
 illuminant scaled to a peak of 1 over 400–720 nm, so a perfect white reflector reads at most 1.
+Cubes are shown as sRGB by :func:`recon.metrics.cube_to_srgb`.
 """
 
 from __future__ import annotations
@@ -20,9 +21,6 @@ __all__ = [
     "colorchecker_names",
     "mallett2019_basis",
     "srgb_to_reflectance",
-    "cube_to_xyz",
-    "xyz_to_srgb",
-    "cube_to_srgb",
 ]
 
 #: Short names → colour-science illuminant names. "LED" is CIE LED-B4 (phosphor white ≈ 5100 K).
@@ -109,34 +107,3 @@ def srgb_to_reflectance(rgb: np.ndarray, wavelengths) -> np.ndarray:
     lin = np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4).astype(np.float32)
     basis = mallett2019_basis(wavelengths).astype(np.float32)
     return np.clip(lin @ basis, 0.0, 1.0).astype(np.float32)
-
-
-def cube_to_xyz(cube: np.ndarray, wavelengths, white: np.ndarray | None = None) -> np.ndarray:
-    """CIE 1931 2° XYZ of a spectral cube (H, W, L): X = Σ_l cube_l · x̄(λ_l) (band sums).
-
-    Normalised so that the spectrum ``white`` (L,) — by default the cube's own maximum over
-    pixels, band by band — has Y = 1.
-    """
-    import colour
-
-    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
-    cmf = sample_sd(np.asarray(cmfs.wavelengths, np.float64), np.asarray(cmfs.values).T,
-                    wavelengths, "the CIE 1931 observer")  # (3, L)
-    c = np.asarray(cube, dtype=np.float32)
-    xyz = c @ cmf.T.astype(np.float32)
-    w = c.reshape(-1, c.shape[-1]).max(axis=0) if white is None else np.asarray(white, np.float64)
-    y_white = float(w @ cmf[1])
-    return (xyz / max(y_white, 1e-12)).astype(np.float32)
-
-
-def xyz_to_srgb(xyz: np.ndarray) -> np.ndarray:
-    """XYZ (D65 white) → encoded sRGB in [0, 1] (clipped), float32."""
-    m = np.array([[3.2406, -1.5372, -0.4986], [-0.9689, 1.8758, 0.0415], [0.0557, -0.2040, 1.0570]],
-                 dtype=np.float32)
-    lin = np.clip(np.asarray(xyz, np.float32) @ m.T, 0.0, 1.0)
-    return np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055).astype(np.float32)
-
-
-def cube_to_srgb(cube: np.ndarray, wavelengths, white: np.ndarray | None = None) -> np.ndarray:
-    """Display rendering: :func:`cube_to_xyz` then :func:`xyz_to_srgb`."""
-    return xyz_to_srgb(cube_to_xyz(cube, wavelengths, white))

@@ -85,31 +85,19 @@ def electron_scale(design, wavelengths=None, widths=None) -> np.ndarray:
 
 
 def airy_kernel(radius_px: float, oversample: int = 5, rings: float = 3.0) -> np.ndarray:
-    """Pixel-integrated Airy PSF with first zero at ``radius_px``, normalised to unit sum.
-
-    I(r) = (2 J₁(x)/x)², x = 3.8317 r / R. The pattern is sampled ``oversample``² times per
-    pixel and averaged (pixel integration); it is cut at ``rings`` × R (past the third dark ring
-    for the default, which holds > 99 % of the energy) and renormalised.
+    """The sensor's blur: the pixel-integrated Airy PSF with first zero at ``radius_px``
+    (:func:`recon.calibration.mask.airy_kernel`, the one the calibration deconvolves with), cut
+    at ``rings`` × R (past the third dark ring for the default, which holds > 99 % of the
+    energy) and renormalised.
 
     Returns
     -------
     numpy.ndarray
         float32 (2k+1, 2k+1), k = max(1, ceil(rings·R)).
     """
-    from scipy.special import j1
+    from recon.calibration.mask import airy_kernel as pixel_airy
 
-    if not np.isfinite(radius_px) or radius_px <= 0:
-        raise InputError(f"Airy radius must be positive, got {radius_px}")
-    k = max(1, int(np.ceil(rings * radius_px)))
-    sub = (np.arange(oversample) + 0.5) / oversample - 0.5
-    t = (np.arange(-k, k + 1)[:, None] + sub[None, :]).ravel()
-    yy, xx = np.meshgrid(t, t, indexing="ij")
-    x = 3.8317059702075125 * np.hypot(yy, xx) / radius_px
-    with np.errstate(invalid="ignore", divide="ignore"):
-        psf = np.where(x > 1e-8, (2.0 * j1(x) / x) ** 2, 1.0)
-    n = 2 * k + 1
-    psf = psf.reshape(n, oversample, n, oversample).mean(axis=(1, 3))
-    return (psf / psf.sum()).astype(np.float32)
+    return pixel_airy(radius_px, support=rings, oversample=oversample).astype(np.float32)
 
 
 def airy_blur(image: np.ndarray, radius_px: float | None = None, *,

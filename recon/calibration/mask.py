@@ -97,7 +97,7 @@ def airy_kernel(radius_px: float, support: float = 2.0, oversample: int = 5) -> 
     -------
     (2n+1, 2n+1) float64
     """
-    if not radius_px > 0:
+    if not (np.isfinite(radius_px) and radius_px > 0):
         raise InputError(f"Airy radius must be positive, got {radius_px}")
     n = max(1, int(np.ceil(support * radius_px)))
     s = (np.arange(oversample) + 0.5) / oversample - 0.5

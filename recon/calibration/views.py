@@ -37,6 +37,9 @@ VIEW_FLIPS = {0: (), 1: (1,), 2: (1,), 3: (0,), 4: (0,), 5: (0, 1), 6: (0, 1), 7
 
 ALL_VIEWS = tuple(range(9))
 
+#: The order views are taken in: a reconstruction from *n* views uses ``VIEW_ORDER[:n]``.
+VIEW_ORDER = (0, 1, 2, 3, 4, 5, 6, 7, 8)
+
 
 def check_view_ids(view_ids) -> tuple[int, ...]:
     """Validate a sequence of distinct view ids in 0..8.

@@ -65,6 +65,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from recon.calibration.views import VIEW_GRID  # each view id's (row, column) in the 3×3 grid
 from recon.errors import InputError
 
 __all__ = [
@@ -76,11 +77,6 @@ __all__ = [
     "parse_overrides",
 ]
 
-#: Grid position (row, column) of each view id in the 3×3 grid, as seen on the sensor.
-VIEW_GRID: dict[int, tuple[int, int]] = {
-    0: (1, 1), 1: (1, 0), 2: (1, 2), 3: (0, 1), 4: (2, 1),
-    5: (0, 0), 6: (0, 2), 7: (2, 0), 8: (2, 2),
-}
 VIEW_NAMES: dict[int, str] = {
     0: "centre", 1: "left", 2: "right", 3: "top", 4: "bottom",
     5: "top-left", 6: "top-right", 7: "bottom-left", 8: "bottom-right",

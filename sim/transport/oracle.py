@@ -40,12 +40,12 @@ import math
 
 import numpy as np
 
+from recon.calibration.views import VIEW_ORDER
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
 
-__all__ = ["ExactOperator", "oracle_operator", "oracle_measurements", "band_gains", "VIEW_ORDER"]
+__all__ = ["ExactOperator", "oracle_operator", "oracle_measurements", "band_gains"]
 
-VIEW_ORDER = (0, 1, 2, 3, 4, 5, 6, 7, 8)
 #: Rademacher probes of :meth:`ExactOperator.mean_row_norm_sq`.
 NORM_PROBES = 8
 

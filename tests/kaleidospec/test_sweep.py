@@ -20,9 +20,9 @@ def cache(tmp_path, monkeypatch):
     from sim.transport import exact as transport
 
     monkeypatch.setenv("KALEIDOSPEC_CACHE", str(tmp_path / "cache"))
-    transport._MEMO.clear()
+    transport.release()
     yield tmp_path / "cache"
-    transport._MEMO.clear()
+    transport.release()
 
 
 def _settings(kind="prism-apex", **kw):
@@ -88,10 +88,12 @@ def test_views_are_widened_for_the_view_count():
 
 
 def test_local_process_pool_returns_every_point():
-    from kaleidospec.sweep import _local_map, evaluate_point, make_points
+    from kaleidospec.parallel import map_unordered
+    from kaleidospec.sweep import evaluate_point, make_points
 
     pts = make_points(_settings(), [85.0, 86.0, 87.0])  # all invalid: no rendering needed
-    got = sorted(r["value"] for r in _local_map(evaluate_point, pts, 2, 0))
+    got = sorted(r["value"] for r in map_unordered(evaluate_point, [(p,) for p in pts],
+                                                    workers=2))
     assert got == [85.0, 86.0, 87.0]
 
 

@@ -130,6 +130,18 @@ def test_srgb_of_flat_white_is_neutral():
     assert np.ptp(raw[0, 0]) > 0.05
 
 
+def test_srgb_encoding_curve_is_the_standards():
+    """``gamma="srgb"``: a flat cube at a quarter of the exposure peak is the neutral grey whose
+    encoded value is 1.055·0.25^(1/2.4) − 0.055 (IEC 61966-2-1); linear below 0.0031308."""
+    cube = np.full((2, 2, WL.size), 0.25)
+    rgb = metrics.cube_to_srgb(cube, WL, peak=1.0, gamma="srgb")
+    np.testing.assert_allclose(rgb, 1.055 * 0.25 ** (1 / 2.4) - 0.055, atol=2e-3)
+    dark = metrics.cube_to_srgb(cube * 0.004, WL, peak=1.0, gamma="srgb")
+    np.testing.assert_allclose(dark, 12.92 * 0.001, atol=1e-4)
+    with pytest.raises(InputError, match="gamma"):
+        metrics.cube_to_srgb(cube, WL, gamma="rec709")
+
+
 def test_srgb_of_a_red_spectrum_is_red():
     cube = np.zeros((2, 2, WL.size))
     cube[..., WL > 620] = 1.0

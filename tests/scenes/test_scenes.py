@@ -10,7 +10,8 @@ from scenes import colorwheel as cw
 from scenes.colorchecker import patch_boxes
 from scenes.natural import photo
 from scenes.registry import get_scene, list_scenes
-from scenes.spectra import cube_to_srgb, illuminant
+from recon.metrics import cube_to_srgb, cube_to_xyz
+from scenes.spectra import illuminant
 
 WL = np.arange(450.0, 701.0, 25.0)
 
@@ -88,7 +89,9 @@ def test_colorwheel_rotated_by_one_sector_maps_sectors_onto_each_other(n):
 def test_natural_scene_renders_back_to_the_photo(image):
     wl = np.arange(400.0, 701.0, 10.0)
     cube, _ = get_scene("natural", (96, 128), wl, image=image)
-    srgb = cube_to_srgb(cube, wl, white=illuminant("D65", wl))
+    # The white is the illuminant itself (a perfect reflector): Y = 1, no colour cast.
+    white = cube_to_xyz(illuminant("D65", wl)[None, None], wl)[0, 0]
+    srgb = cube_to_srgb(cube, wl, white=white, peak=white[1], gamma="srgb")
     src = photo(image, (96, 128))
     for ch in range(3):
         r = np.corrcoef(srgb[..., ch].ravel(), src[..., ch].ravel())[0, 1]
