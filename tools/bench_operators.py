@@ -21,17 +21,12 @@ Usage: python3 tools/bench_operators.py [--repeat N] [--skip-homography] [--only
 from __future__ import annotations
 
 import argparse
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-# This checkout's recon, not whichever an editable install points at.
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from recon import kernels  # noqa: E402
-from recon.operators import (  # noqa: E402
+from recon import kernels
+from recon.operators import (
     CalibratedCassi, HomographyWarp, kaleidoscope_cassi, standard_cassi,
 )
 

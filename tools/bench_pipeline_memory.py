@@ -17,13 +17,8 @@ import argparse
 import functools
 import os
 import resource
-import sys
 import tempfile
 import time
-from pathlib import Path
-
-# This checkout's packages, not whichever an editable install points at.
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
 def _rss_mb() -> float:

@@ -45,9 +45,6 @@ from pathlib import Path
 
 import numpy as np
 
-# This checkout's recon, not whichever an editable install points at.
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
 from recon.io.atomic import atomic_path  # noqa: E402
 from recon.metrics import psnr  # noqa: E402
 from recon.operators import kaleidoscope_cassi, standard_cassi  # noqa: E402

@@ -41,14 +41,10 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 import tempfile
 import time
-from pathlib import Path
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
 def best_of(fn, n=3):
@@ -201,14 +197,14 @@ def bench(preset, counts, size, cache, frames_only=False):
     print(f"== {preset}: sensor {d.sensor_width_px}x{d.sensor_height_px}, views "
           f"{list(d.views)} of {v} px, {wl.size} bands", flush=True)
     os.environ["KALEIDOSPEC_CACHE"] = cache
-    transport._MEMO.clear()
+    transport.release()
     t0 = time.perf_counter()
     tr = transport.load_or_build(d, wl, seed=transport.SEEDS["scene"])
     t_build = time.perf_counter() - t0
     size_mb = tr.path.stat().st_size / 2**20
     print(f"build: {t_build:.1f} s ({tr.maps.nodes_nm.size} wavelength nodes, "
           f"{len(tr.views)} views); on disk {size_mb:.2f} MiB")
-    transport._MEMO.clear()
+    transport.release()
     t0 = time.perf_counter()
     tr = transport.load_or_build(d, wl, seed=transport.SEEDS["scene"])
     tr.prepare(range(wl.size), v)

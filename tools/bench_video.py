@@ -18,14 +18,11 @@ Targets: render ≥ 5 frames/s; reconstruct ≥ 1 frame/s warm, within 0.5 dB of
 from __future__ import annotations
 
 import argparse
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 PAPER_DE = {1: 21, 2: 19, 3: 18, 5: 10}
 

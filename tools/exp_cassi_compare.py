@@ -40,11 +40,9 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from exp_views import (  # noqa: E402  (sibling script, shared table/figure helpers)
-    fmt, get_design, matplotlib_agg, metrics_of, parse_list, save_figure, scene_label,
-    srgb, srgb_peak, stop_rule, write_json,
-)
+from kaleidospec.experiments import (fmt, get_design, matplotlib_agg, metrics_of, parse_list,
+                                     save_figure, scene_label, srgb, srgb_peak, stop_rule,
+                                     write_json)
 
 CONFIGS = {
     "a": "traditional CASSI (full frame)",

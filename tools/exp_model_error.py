@@ -38,22 +38,19 @@ import argparse
 import dataclasses
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
 def band_columns(cal, ids, x, kernels):
     """Per PSF set, the (L, n) float32 blurred band images of the shifted model on the views'
     pixels that any mask image opens; ``kernels``: name -> a function of the band giving its
     PSF (None: no blur)."""
-    from recon.calibration.operator import _unblurred
+    from recon.calibration import operator_from_calibration
     from recon.operators.blur import convolve_views
 
-    op = _unblurred(cal, ids, "shifted", None)
+    # The shifted model without the calibration's PSF: the PSF sets are applied below.
+    op = operator_from_calibration(dataclasses.replace(cal, psf=None), ids, "shifted")
     idx = cal.view_indices(ids)
     open_ = cal.mask_images[idx].max(axis=1) > 0
     cols = {name: [] for name in kernels}
@@ -93,12 +90,11 @@ def main(argv=None) -> int:
     ap.add_argument("--views", default="5", help="view counts, comma-separated")
     a = ap.parse_args(argv)
 
-    from exp_views import exact_mask_images
-    from kaleidospec.calibrate import calibrate, deconvolution_radii
-    from kaleidospec.instrument import design_for_views, get_design, scene_cube
+    from kaleidospec.calibrate import calibrate, deconvolution_radii, floor_chrome
+    from kaleidospec.instrument import design_for_views, get_design, noise_free_whites, scene_cube
     from kaleidospec.models import truth_on_grid
     from kaleidospec.reconstruct import first_views
-    from recon.calibration.mask import airy_kernel, view_stack
+    from recon.calibration.mask import airy_kernel, normalise_mask_images, view_stack
     from sim.frame import FrameModel, ground_truth
     from sim.transport.exact import SEEDS
 
@@ -118,7 +114,9 @@ def main(argv=None) -> int:
         # three radii as the simulator's and the deconvolution's.
         per_band = [airy_kernel(float(r), support=3.0).astype(np.float32) for r in radii]
         kernels = {"one PSF": lambda l: cal.psf, "PSF per band": lambda l: per_band[l]}
-    sim_masks = dataclasses.replace(cal, mask_images=exact_mask_images(design, cal))
+    # The simulator's mask images (noise-free whites, no blur), normalised like the calibration's.
+    images = floor_chrome(normalise_mask_images(noise_free_whites(design, cal.view_boxes)))
+    sim_masks = dataclasses.replace(cal, mask_images=images)
     print(f"design {a.design} ({design.hash}), scene {a.scene} at {cube.shape[0]}x{cube.shape[1]}"
           f" texels; frames and simulator masks in {time.perf_counter() - t0:.0f} s", flush=True)
     names = list(kernels)

@@ -56,13 +56,15 @@ cores). ``--set`` accepts any design field (``kaleidospec design show`` lists th
 from __future__ import annotations
 
 import argparse
-import json
-import math
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+from kaleidospec.experiments import (finite, fmt, get_design, matplotlib_agg, metrics_of,
+                                     parse_list, save_figure, scene_label, srgb, srgb_peak,
+                                     stop_rule, write_json)
 
 #: Paper Fig. 7 (synthetic, 25 bands 450–690 nm, τ = 0.15, 50 TwIST iterations): PSNR in dB.
 PAPER_FIG7 = {1: 15.93, 2: 18.62, 3: 18.99, 5: 20.96, 9: 24.96}
@@ -79,96 +81,6 @@ ORACLE_GAP_DB = 1.0
 PATCH_DELTA_E = 2.0
 #: Iterations after which ``--history`` prints the PSNR (then every 100).
 HISTORY_AT = (25, 50, 100, 150, 200, 250, 300)
-
-
-# ---------------------------------------------------------------------------- shared helpers
-def parse_list(text: str, kind=str) -> list:
-    """``"a,b,c"`` → ``[a, b, c]`` (empty items dropped)."""
-    return [kind(t.strip()) for t in text.split(",") if t.strip()]
-
-
-def scene_label(scene: str) -> str:
-    """A short name for tables: the file's stem for a cube path, else the scene name."""
-    p = Path(scene)
-    return p.stem if (p.suffix or p.exists()) else scene
-
-
-def finite(x):
-    """JSON-safe float: ``inf`` (identical cubes) and NaN become None."""
-    if x is None:
-        return None
-    x = float(x)
-    return x if math.isfinite(x) else None
-
-
-def metrics_of(cube, truth, wavelengths) -> dict:
-    """PSNR (global, paper), SSIM, SAM, CIEDE2000 of ``cube`` against ``truth`` (JSON-ready)."""
-    from recon.metrics import all_metrics
-
-    m = all_metrics(cube, truth, wavelengths)
-    return {k: finite(v) for k, v in m.items()}
-
-
-def write_json(path: Path, obj) -> None:
-    from recon.io.atomic import write_text
-
-    write_text(path, json.dumps(obj, indent=2, sort_keys=True, default=_json_default) + "\n")
-
-
-def _json_default(o):
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, (tuple, set)):
-        return list(o)
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
-
-
-def save_figure(fig, path: Path) -> None:
-    """``fig.savefig`` to a temporary file next to ``path``, then rename."""
-    import matplotlib.pyplot as plt
-
-    from recon.io.atomic import atomic_path
-
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-
-
-def srgb(cube, wavelengths, peak):
-    """Display sRGB of a cube with a fixed exposure ``peak`` (so panels compare)."""
-    from recon.metrics import cube_to_srgb
-
-    return cube_to_srgb(np.clip(cube, 0, None), wavelengths, peak=peak)
-
-
-def srgb_peak(truth, wavelengths) -> float:
-    """The exposure used for every panel of a scene: the truth's 99th-percentile luminance."""
-    from recon.metrics import cube_to_xyz
-
-    return float(np.percentile(cube_to_xyz(truth, wavelengths)[..., 1], 99.0))
-
-
-def fmt(x, spec=".2f") -> str:
-    return "—" if x is None else format(x, spec)
-
-
-def get_design(name: str, overrides: list[str] | None):
-    from sim.optics.design import get_design as _get, parse_overrides
-
-    return _get(name, parse_overrides(overrides))
-
-
-def matplotlib_agg():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 # ---------------------------------------------------------------------------- the experiment
@@ -264,29 +176,10 @@ def exact_mask_images(design, cal) -> np.ndarray:
     calibration's are (:func:`recon.calibration.mask.normalise_mask_images`,
     :func:`kaleidospec.calibrate.floor_chrome`)."""
     from kaleidospec.calibrate import floor_chrome
-    from recon.calibration.mask import normalise_mask_images, view_stack
-    from scenes.calibration import white
-    from sim.frame import FrameModel
-    from sim.transport.exact import SEEDS
+    from kaleidospec.instrument import noise_free_whites
+    from recon.calibration.mask import normalise_mask_images
 
-    wl = design.wavelengths
-    cube = white((design.view_size_px,) * 2, wl)
-    model = FrameModel(design, wl, trace_seed=SEEDS["captures"], diffraction=False)
-    out = np.empty(cal.mask_images.shape, np.float32)
-    band = np.zeros_like(cube)
-    for l in range(wl.size):
-        band[:, :, l] = cube[:, :, l]
-        out[:, l] = view_stack(model.electrons(band)[None], cal.view_boxes)[:, 0]
-        band[:, :, l] = 0.0
-    return floor_chrome(normalise_mask_images(out))
-
-
-def stop_rule(iters: int, tol, short: bool = False) -> str:
-    """The stopping rule in words."""
-    if not tol:
-        return f"{iters} it" if short else f"{iters} iterations"
-    return (f"≤{iters} it, tol {tol:g}" if short else
-            f"until a relative change < {tol:g} (at most {iters} iterations)")
+    return floor_chrome(normalise_mask_images(noise_free_whites(design, cal.view_boxes)))
 
 
 def history_points(n_iters: int) -> list[int]:

@@ -36,8 +36,6 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
 #: Bytes of machine code read from the kernel's entry point (its code is ~40 KB on x86-64).
 CODE_BYTES = 200_000
 
@@ -76,9 +74,7 @@ def run_kernel(preset: str, view: int, scale: int, seconds: float, info: Path | 
 
     once()
     if info is not None:
-        kern = view_integral._kernel
-        cres = kern.overloads[kern.signatures[0]]
-        addr = cres.library.get_pointer_to_function(cres.fndesc.llvm_func_name)
+        addr = view_integral.kernel_address()
         code = info.with_suffix(".bin")
         code.write_bytes(ctypes.string_at(addr, CODE_BYTES))
         info.write_text(json.dumps({"address": addr, "code": str(code), "view": tr.views[k]}))
