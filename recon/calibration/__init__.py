@@ -35,7 +35,8 @@ from recon.calibration.store import (Calibration, build_calibration, calibration
 from recon.calibration.views import VIEW_FLIPS, VIEW_GRID, VIEW_ORDER, find_view_boxes
 
 __all__ = [
-    "Calibration", "DispersionFit", "VIEW_FLIPS", "VIEW_GRID", "VIEW_ORDER", "airy_kernel", "airy_radius_px",
+    "Calibration", "DispersionFit", "VIEW_FLIPS", "VIEW_GRID", "VIEW_ORDER", "airy_kernel",
+    "airy_radius_px",
     "apply_gains", "apply_homography", "band_mean_positions", "band_positions", "board_field",
     "build_calibration", "calibration_path", "check_design", "find_corners", "find_view_boxes",
     "fit_dispersion", "fit_gains", "flat_field_gains", "lead_columns", "line_centroids",

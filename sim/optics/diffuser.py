@@ -53,8 +53,8 @@ class CubeRegion:
 #: Orientation of the diffuser on the sensor: sensor column grows with −x (sx = −1) and sensor
 #: row with +y (sy = +1). The relay and the 4f collimator/imaging relay each invert the image
 #: once, so this is the camera's own convention (:mod:`sim.optics.camera`, up = +y, looking back along
-#: the folded axis); it was fixed by rendering an asymmetric target, and
-#: ``tests/sim/optics/test_optics.py`` checks that the centre view comes out upright and unflipped.
+#: the folded axis): ``tests/sim/optics/test_optics.py`` renders an asymmetric target and checks
+#: that the centre view comes out upright and unflipped.
 SENSOR_FROM_DIFFUSER = (-1.0, 1.0)
 
 

@@ -184,8 +184,8 @@ def spherical_lens_mesh(focal_mm: float, diameter_mm: float, n_glass: float = 1.
 def real_lens_shape(focal_mm: float, center, diameter_mm: float, glass: str = "BK7",
                     design_nm: float = 587.6, axis=(0.0, 0.0, 1.0), hero: bool = False):
     """A real equiconvex BK-7 (or other glass) singlet as a Mitsuba mesh with the dispersive
-    dielectric of :mod:`sim.optics.dielectric` (so it shows chromatic aberration; ~1.6× slower than the
-    ideal thin lens), its axis rotated from +z onto ``axis``.
+    dielectric of :mod:`sim.optics.dielectric` (so it shows chromatic aberration; slower than
+    the ideal thin lens), its axis rotated from +z onto ``axis``.
 
     ``hero`` stays False: the backward path meets the prism (which keeps only the first
     wavelength, once) before any lens, so the lens refracts with that same first wavelength

@@ -14,13 +14,12 @@ normal :math:`n`, :math:`\epsilon \approx 9 \cdot 10^{-5}` in single precision) 
 re-hitting the surface it leaves.  In this scene the coordinates are hundreds of millimetres,
 so every crossing moves the ray by ~0.04 mm along the normal; for a ray at angle
 :math:`\theta` to a lens plane that is a lateral step of :math:`0.04 \tan\theta` mm, different
-for every point of the aperture: a defocus.  Measured with the chief and marginal rays of one
-sensor point (``tools/bench_transport.py --spawn``): the image of a sensor point on the mask
-spreads over 0.26 px (``small``) and 1.36 px (``paper``) instead of a point, and on the diffuser
-over 0.5 and 2.6 px — a blur no ideal-lens instrument has, as large as ``paper``'s Airy disc.
-:func:`continue_ray` moves the origin along the new direction instead, which keeps the ray on
-its exact line (the surfaces are planes or convex, so the step cannot re-enter the one left):
-the spread falls to the float32 round-off, 0.0006 px (``small``) and 0.005 px (``paper``).
+for every point of the aperture: a defocus.  The image of a sensor point on the mask and on
+the diffuser then spreads over pixels instead of a point, a blur no ideal-lens instrument has
+(``tools/bench_transport.py --spawn`` measures it with the chief and marginal rays of one
+sensor point).  :func:`continue_ray` moves the origin along the new direction instead, which
+keeps the ray on its exact line (the surfaces are planes or convex, so the step cannot re-enter
+the one left): the spread falls to the float32 round-off.
 """
 
 from __future__ import annotations

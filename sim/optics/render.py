@@ -14,7 +14,7 @@ show it).  ``sampler="stratified"`` draws each pixel's samples from Mitsuba's ``
 sampler (stratified over the pixel, the aperture and the band) for a faster-converging
 reference.
 
-This is slow (~1 M samples/s on 2 cores) and exists to check the transport cache
+This is slow (a Monte Carlo render, many samples a pixel) and exists to check the transport
 (:mod:`sim.transport.exact`) and for one-off monochromatic captures.
 """
 

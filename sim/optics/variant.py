@@ -2,7 +2,7 @@
 
 Every optical element after the diffuser is a delta (specular) interaction and the prism needs
 the wavelength of each path, so the simulator needs a *spectral* variant. ``llvm_ad_spectral``
-vectorises the Python plugins (lens, prism) with drjit's LLVM backend and is ~80× faster than
+vectorises the Python plugins (lens, prism) with drjit's LLVM backend and is much faster than
 ``scalar_spectral``, which runs every Python plugin call once per ray. When the LLVM backend
 cannot start (no usable ``libLLVM``: drjit aborts with Debian's libLLVM-14/15 and needs ≥ 17,
 found automatically or through ``DRJIT_LIBLLVM_PATH``), we fall back to ``scalar_spectral`` with

@@ -149,8 +149,8 @@ def _fit(pr, pc, values, degree):
     ``values`` (P,)) and the RMS residuals.
 
     Normal equations (the Legendre basis is well conditioned over the fitted square) summed
-    with ``einsum``: LAPACK's least squares hands these tiny systems to a thread pool that,
-    beside Mitsuba's and Numba's, took 28 ms a fit instead of 0.2.
+    with ``einsum``: LAPACK's least squares hands these tiny systems to a thread pool that
+    contends with Mitsuba's and Numba's.
     """
     terms = _terms(degree)
     a = np.stack([pr[:, i] * pc[:, j] for i, j in terms], axis=1)

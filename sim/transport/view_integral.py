@@ -40,8 +40,8 @@ evaluated once per edge in a block of rows, not twice.
 
 The result equals :func:`~sim.transport.pixel_integral.band_forward` band by band to a few 10⁻⁵ of the
 view's peak (the footprints' y bounds are interpolated where that kernel interpolates the
-shares; both are exact to the maps' 10⁻⁴ px; ``tests/sim/transport/test_view_integral.py``) and, on
-``paper``, costs about half of what its 26 bands cost there (``tools/bench_transport.py``).
+shares; both are exact to the maps' 10⁻⁴ px; ``tests/sim/transport/test_view_integral.py``); what
+it costs against the band-by-band kernel is measured by ``tools/bench_transport.py``.
 """
 
 from __future__ import annotations
