@@ -359,7 +359,7 @@ def sensor_noise(design, caps):
 def _radiometry(design, caps, cal, model) -> np.ndarray:
     """The gains of ``model`` refitted on the ColorChecker capture (per-band least squares of
     the reconstructed patches against their reference radiance)."""
-    from recon.calibration.views import VIEW_ORDER
+    from recon.view_ids import VIEW_ORDER
     from kaleidospec.models import grid_offset, model_gains
     from kaleidospec.reconstruct import DEFAULTS, reconstruct_views
     from recon.calibration import fit_gains, patch_spectra

@@ -36,7 +36,7 @@ TARGET_SPAN_PX = 60.0
 def scores(info, n_views: int) -> dict:
     """The entry of one view count in ``metrics.json`` from a reconstruction's ``info``
     (:func:`kaleidospec.reconstruct.reconstruct_views`): the metrics, the views, the time."""
-    from recon.calibration.views import VIEW_ORDER
+    from recon.view_ids import VIEW_ORDER
 
     m = dict(info.get("metrics", {}))
     return {"n_views": n_views, "view_ids": info.get("view_ids", list(VIEW_ORDER[:n_views])),

@@ -40,8 +40,8 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.calibration.views import VIEW_ORDER
 from recon.errors import InputError
+from recon.view_ids import VIEW_ORDER
 from sim.bands import band_intervals
 from sim.captures import CHECKER_NM, comb_captures, render_captures
 from sim.optics.design import Design, get_design, parse_overrides

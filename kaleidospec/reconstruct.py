@@ -1,7 +1,7 @@
 r"""A raw frame and a calibration → cubes, for any number of views (and, for reference, the
 same frame through the design's exact operator).
 
-:func:`reconstruct_views` cuts the first ``n`` views (:data:`recon.calibration.views.VIEW_ORDER`:
+:func:`reconstruct_views` cuts the first ``n`` views (:data:`recon.view_ids.VIEW_ORDER`:
 centre, left, right, top, bottom, corners) out of the frame and solves
 
 .. math:: \hat f = \arg\min_f \tfrac12 \|s\,(g/e) - s\,H\,\mathrm{diag}(c)^{-1} f\|^2
@@ -59,7 +59,7 @@ TAU_PER_NOISE = {"fista-tv": 0.15, "twist": 0.15}
 
 def first_views(n_views) -> tuple[int, ...]:
     """The ids of the first ``n_views`` views (an integer 1..9) in the order views are added."""
-    from recon.calibration.views import VIEW_ORDER
+    from recon.view_ids import VIEW_ORDER
 
     try:
         n = int(n_views)

@@ -93,7 +93,7 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
     from kaleidospec.reconstruct import (check_oracle_solver, first_views, reconstruct_oracle,
                                          reconstruct_views)
     from recon.calibration import check_design
-    from recon.calibration.views import VIEW_ORDER
+    from recon.view_ids import VIEW_ORDER
     from recon.io.atomic import atomic_dir, check_output, output_parents
     from recon.io.cubes import write_cube
     from recon.io.raw import write_raw

@@ -26,19 +26,7 @@ import numpy as np
 from scipy.ndimage import uniform_filter1d
 
 from recon.errors import InputError
-
-#: Grid cell (row, column) of every view id in the 3×3 layout.
-VIEW_GRID = {0: (1, 1), 1: (1, 0), 2: (1, 2), 3: (0, 1), 4: (2, 1),
-             5: (0, 0), 6: (0, 2), 7: (2, 0), 8: (2, 2)}
-
-#: Image axes (0 rows, 1 columns) that the mirrors reverse in every view, relative to the centre.
-VIEW_FLIPS = {0: (), 1: (1,), 2: (1,), 3: (0,), 4: (0,), 5: (0, 1), 6: (0, 1), 7: (0, 1),
-              8: (0, 1)}
-
-ALL_VIEWS = tuple(range(9))
-
-#: The order views are taken in: a reconstruction from *n* views uses ``VIEW_ORDER[:n]``.
-VIEW_ORDER = (0, 1, 2, 3, 4, 5, 6, 7, 8)
+from recon.view_ids import ALL_VIEWS, VIEW_FLIPS, VIEW_GRID, VIEW_ORDER  # noqa: F401
 
 
 def check_view_ids(view_ids) -> tuple[int, ...]:

@@ -65,8 +65,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from recon.calibration.views import VIEW_GRID  # each view id's (row, column) in the 3×3 grid
 from recon.errors import InputError
+from recon.view_ids import VIEW_GRID
 
 __all__ = [
     "Design",

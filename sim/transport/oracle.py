@@ -40,9 +40,9 @@ import math
 
 import numpy as np
 
-from recon.calibration.views import VIEW_ORDER
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
+from recon.view_ids import VIEW_ORDER
 
 __all__ = ["ExactOperator", "oracle_operator", "oracle_measurements", "band_gains"]
 
