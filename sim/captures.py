@@ -259,15 +259,14 @@ def render_captures(design, *, repeats: int = 4, seed: int = 1000, progress: boo
     whites = lines = None
     meta: dict = {"white": [], "line": []}
     out = {}
-    before = checker_known = set(transport._MEMO)
+    before = checker_known = transport.held()
     try:
         for i in order:
             name, l = steps[i]
             s = seed + 101 * i
             if not keep_transport and i == order[len(band_pass)]:
-                for key in set(transport._MEMO) - before:
-                    del transport._MEMO[key]
-            known = set(transport._MEMO)
+                transport.release(keys=transport.held() - before)
+            known = transport.held()
             if name == "checker":
                 checker_known = known
             if name == "white":
@@ -319,8 +318,7 @@ def render_captures(design, *, repeats: int = 4, seed: int = 1000, progress: boo
                 # computed) serves that capture only (the checkerboard's also its white's),
                 # and the memo would hold all 27 to the end of the process.
                 since = checker_known if name == "checker_white" else known
-                for key in set(transport._MEMO) - since:
-                    del transport._MEMO[key]
+                transport.release(keys=transport.held() - since)
             if bar is not None:
                 bar.update(1)
     finally:

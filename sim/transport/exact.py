@@ -42,7 +42,7 @@ from recon.kernels import cores, each
 from sim.bands import band_intervals
 
 __all__ = ["Transport", "SEEDS", "cache_dir", "build_transport", "load_or_build",
-           "render_cached", "release", "each", "ordered_sum", "STATS"]
+           "render_cached", "held", "release", "each", "ordered_sum", "STATS"]
 
 #: Trace realisations: calibration captures, scene frames and the exact (oracle) operator.
 SEEDS = {"captures": 0, "scene": 1, "oracle": 2}
@@ -421,11 +421,21 @@ def render_cached(design, cube: np.ndarray, wavelengths, *, seed: int = 0,
     return tr.apply(cube)
 
 
-def release(seed: int | None = None) -> None:
-    """Drop the transports held in memory: all of them, or those traced with ``seed`` (a value
-    of :data:`SEEDS`); the cache folder keeps its files."""
-    if seed is None:
+def held() -> set[str]:
+    """The keys of the transports held in memory now (a step that makes transports for itself
+    releases those that were not held before it)."""
+    return set(_MEMO)
+
+
+def release(seed: int | None = None, *, keys=None) -> None:
+    """Drop transports held in memory: those of ``keys`` (from :func:`held`) when given, else
+    those traced with ``seed`` (a value of :data:`SEEDS`), else all of them.  The cache folder
+    keeps its files."""
+    if keys is not None:
+        for key in keys:
+            _MEMO.pop(key, None)
+    elif seed is None:
         _MEMO.clear()
-        return
-    for key in [k for k, tr in _MEMO.items() if int(tr.maps.seed) == int(seed)]:
-        del _MEMO[key]
+    else:
+        for key in [k for k, tr in _MEMO.items() if int(tr.maps.seed) == int(seed)]:
+            del _MEMO[key]

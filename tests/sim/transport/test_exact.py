@@ -294,3 +294,22 @@ def test_row_blocks_cover_the_rows_once_in_equal_shares(h, workers):
     assert max(sizes) <= 48 and max(sizes) - min(sizes) <= 1
     if h >= workers:
         assert len(blocks) % workers == 0
+
+
+def test_release_drops_the_transports_asked_for(monkeypatch):
+    """By key (what a step added), by trace realisation, or all; unknown keys are ignored."""
+    from types import SimpleNamespace
+
+    from sim.transport import exact
+
+    def fake(seed):
+        return SimpleNamespace(maps=SimpleNamespace(seed=seed))
+
+    monkeypatch.setattr(exact, "_MEMO", {"a": fake(0), "b": fake(1), "c": fake(1), "d": fake(2)})
+    assert exact.held() == {"a", "b", "c", "d"}
+    exact.release(keys={"a", "gone"})
+    assert exact.held() == {"b", "c", "d"}
+    exact.release(seed=1)
+    assert exact.held() == {"d"}
+    exact.release()
+    assert exact.held() == set()
