@@ -140,9 +140,10 @@ def render_sequence(anim, design, out_dir, *, radiance_scale: float, seed: int =
         renderer = FrameRenderer(design, anim.shape, anim.wavelengths, progress=progress)
     bar = None
     if progress:
-        from tqdm import tqdm
+        from recon.progress import progress_bar
 
-        bar = tqdm(total=len(anim), initial=stats["skipped"], desc="render", unit="frame")
+        bar = progress_bar(total=len(anim), initial=stats["skipped"], desc="render",
+                           unit="frame", leave=True)
     desc = anim.describe()
     try:
         for i in todo:
@@ -319,9 +320,10 @@ def reconstruct_sequence(out_dir, n_frames: int, segments, settings: dict, *,
         s["threads"] = max(1, ncpu // nproc) if backend != "dask" else 1
     bar = None
     if progress:
-        from tqdm import tqdm
+        from recon.progress import progress_bar
 
-        bar = tqdm(total=n_frames, initial=already, desc="reconstruct", unit="frame")
+        bar = progress_bar(total=n_frames, initial=already, desc="reconstruct", unit="frame",
+                           leave=True)
     t0 = time.perf_counter()
     results = []
 

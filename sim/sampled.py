@@ -298,9 +298,9 @@ def build_transport(design, shape, wavelengths=None, *, spp: int = 4, seed: int 
     pix, tex, w = [], [], []
     it = range(wl.size)
     if progress:
-        from tqdm import tqdm
+        from recon.progress import progress_bar
 
-        it = tqdm(it, desc="transport", unit="band")
+        it = progress_bar(it, desc="transport", unit="band", leave=True)
     for l in it:
         inside = (wl[l] >= design.filter_min_nm) and (wl[l] <= design.filter_max_nm)
         if not inside or iv[l, 1] < iv[l, 0]:
