@@ -4,7 +4,8 @@ counting the work done, not by timing it: a test fails if the skip stops happeni
 - a frame integrates and blurs only the bands with light (a band-pass capture: one band);
 - the exact operator integrates only the views whose blurred light reaches a measured pixel,
   forward and adjoint;
-- a solve stops once its stopping rule holds, and spends no operator work after that.
+- a solve stops once its stopping rule holds, and spends no operator work after that;
+- diffraction within a pixel is neither deconvolved in the calibration nor modelled by a PSF.
 
 The page's figures (the time each skip saves) come from ``tools/bench_skips.py``.
 """
@@ -153,3 +154,34 @@ def test_a_converged_solve_stops_and_does_no_more_work(solver):
     # It costs what a solve of that many iterations costs, and less than running on.
     assert calls == run(res.iterations, None)[1]
     assert calls < run(400, None)[1]
+
+
+def test_diffraction_within_a_pixel_is_neither_deconvolved_nor_modelled(monkeypatch):
+    """Where every band's Airy radius stays inside a pixel (``small``) the calibration does not
+    deconvolve its mask images and the calibrated model carries no PSF (no blur a solve
+    iteration)."""
+    import dataclasses
+
+    import recon.calibration.mask as mask
+    from calibrations import three_view_calibration
+    from kaleidospec.calibrate import deconvolution_radii
+    from recon.calibration import airy_kernel
+    from recon.calibration.operator import operator_from_calibration
+    from recon.operators.blur import BlurredOperator
+    from sim.design import get_design
+
+    assert deconvolution_radii(get_design("small")) is None
+    assert deconvolution_radii(get_design("paper")) is not None
+    # No radius: none of the deconvolutions runs.
+    for name in ("tv_deconvolve", "wiener_deconvolve", "deconvolve"):
+        monkeypatch.setattr(mask, name, lambda *a, _n=name, **k: pytest.fail(f"{_n} ran"))
+    whites = np.ones((2, 20, 30), np.float32)
+    views = mask.white_views(whites, [(0, 0, 20, 30)], airy_radius=None)
+    assert views.shape == (1, 2, 20, 30)
+    # No PSF: the calibrated model is not wrapped in a blur.
+    rng = np.random.default_rng(0)
+    cal = three_view_calibration((rng.random((3, 4, 12, 40)) < 0.5).astype(np.float32))
+    assert cal.psf is None
+    assert not isinstance(operator_from_calibration(cal, (0, 1, 2)), BlurredOperator)
+    blurred = dataclasses.replace(cal, psf=airy_kernel(1.2))         # what `paper` carries
+    assert isinstance(operator_from_calibration(blurred, (0, 1, 2)), BlurredOperator)

@@ -15,7 +15,12 @@ The scene needs little: light in three of the design's bands, a square over a bl
    defeated by integrating every traced view, forward and adjoint;
 4. *converged solves*: FISTA-TV stops once the cube's relative change per iteration falls below
    10⁻³ (the default) instead of running its 400 iterations; the frame of the scene above,
-   five views, the calibrated shifted model (calibrated once, cached).
+   five views, the calibrated shifted model (calibrated once, cached);
+5. *diffraction within a pixel*: where every band's Airy radius stays below
+   :data:`kaleidospec.calibrate.DECONVOLVE_MIN_PX` (``small``), the calibration does not
+   deconvolve its mask images and the calibrated model carries no PSF; defeated by a threshold
+   of 0 (one set of captures, rendered once), and the model's forward and adjoint timed with
+   and without the PSF it would then carry.
 
 Prints one line per skip: the time with the skip, without it, and their ratio.
 
@@ -72,6 +77,8 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--bands", default="2,5,8", help="the lit bands")
     ap.add_argument("--skip-solve", action="store_true", help="leave out the converged solves")
+    ap.add_argument("--skip-calibration", action="store_true",
+                    help="leave out the calibration without deconvolution")
     args = ap.parse_args(argv)
 
     from kaleidospec.instrument import FrameRenderer
@@ -145,7 +152,57 @@ def main(argv=None) -> int:
         change = float(np.linalg.norm(c1 - c0) / np.linalg.norm(c0))
         line(f"converged solve: FISTA-TV, {n} views", i1["seconds"], i0["seconds"],
              f"{i1['iters']} against {i0['iters']} iterations; cubes {change:.1e} apart")
+
+    # 5. Diffraction within a pixel: no deconvolution, no PSF in the model.
+    if not args.skip_calibration:
+        within_a_pixel(d, args.repeat)
     return 0
+
+
+def within_a_pixel(d, repeat):
+    """Item 5: the calibration and the calibrated model with the skip and without it."""
+    import dataclasses
+
+    import kaleidospec.calibrate as kc
+    from kaleidospec.instrument import render_captures
+    from kaleidospec.reconstruct import calibrated_operator, first_views
+
+    if kc.deconvolution_radii(d) is not None:
+        print("diffraction: the Airy radius reaches past a pixel: nothing to skip", flush=True)
+        return
+    caps = render_captures(d)
+    threshold = kc.DECONVOLVE_MIN_PX
+
+    def calibration(minimum):
+        kc.DECONVOLVE_MIN_PX = minimum
+        try:
+            return kc.calibrate_from_captures(d, captures=caps)
+        finally:
+            kc.DECONVOLVE_MIN_PX = threshold
+
+    kept = {}
+
+    def run(minimum):
+        def go():
+            kept[minimum] = calibration(minimum)
+        return go
+
+    a, b = best_pair(run(threshold), run(0.0), max(1, repeat // 2))
+    line("diffraction within a pixel: calibration", a, b, "captures rendered once, apart")
+    plain, blurred = kept[threshold], kept[0.0]
+    assert plain.psf is None and blurred.psf is not None
+    ids = first_views(min(5, len(plain.view_ids)))
+    op0 = calibrated_operator(plain, ids)
+    op1 = calibrated_operator(dataclasses.replace(plain, psf=blurred.psf), ids)
+    x = np.random.default_rng(0).random(op0.ishape).astype(np.float32)
+    y = op0.forward(x)
+
+    def pair(op):
+        return lambda: op.adjoint(op.forward(x) - y)
+
+    a, b = best_pair(pair(op0), pair(op1), repeat)
+    line(f"diffraction within a pixel: model forward+adjoint, {len(ids)} views", a, b,
+         f"PSF {blurred.psf.shape[0]}x{blurred.psf.shape[1]}")
 
 
 if __name__ == "__main__":
