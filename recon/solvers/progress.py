@@ -19,8 +19,8 @@ __all__ = ["ProgressCallback"]
 
 
 class ProgressCallback:
-    """Solver callback that drives a :func:`progress_bar`; use as a context manager (or call
-    close()).
+    """Solver callback that drives a progress report (:mod:`recon.progress`); use as a context
+    manager (or call close()).
 
     Parameters
     ----------
