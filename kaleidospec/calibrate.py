@@ -177,16 +177,17 @@ def calibrate(design, *, model: str | None = None, cache_dir=None, progress: boo
     """
     from kaleidospec.instrument import cache_dir as folder
     from kaleidospec.models import DEFAULT_MODEL, holds
-    from recon.calibration import calibration_path, load_cached, save_calibration
+    from recon.calibration import load_cached, save_cached
 
     model = DEFAULT_MODEL if model is None else model
     cdir = folder(cache_dir)
     if not force:
+        # None also for a damaged entry (removed with one warning line): calibrated again.
         cal = load_cached(cdir, design.hash)
         if cal is not None and holds(cal, model):
             return cal
     cal = calibrate_from_captures(design, models=(model,), repeats=repeats, progress=progress)
-    save_calibration(calibration_path(cdir, design.hash), cal)
+    save_cached(cdir, cal)
     return cal
 
 
