@@ -320,6 +320,7 @@ def _save(tr: Transport, path: Path, key: str) -> None:
     from recon.io.cache import write_npz
 
     arrays = {
+        "format": np.array(_FORMAT), "design_hash": np.array(tr.design_hash),
         "shape": np.array(tr.shape, np.int64), "sensor": np.array(tr.sensor, np.int64),
         "wavelengths": tr.wavelengths, "intervals": tr.intervals, "spp": np.array(tr.spp),
         "build_seconds": np.array(tr.build_seconds),

@@ -348,7 +348,8 @@ def _save(tr: Transport, path: Path, key: str) -> None:
 
     m = tr.maps
     arrays = {name: getattr(m, name) for name in _ARRAYS}
-    arrays.update(views=np.array(m.views, np.int64), degree=np.array(m.degree),
+    arrays.update(format=np.array(_FORMAT), design_hash=np.array(tr.design_hash),
+                  views=np.array(m.views, np.int64), degree=np.array(m.degree),
                   has_stop=np.array(m.has_stop), stop_half=np.array(m.stop_half),
                   seed=np.array(m.seed), seconds=np.array(m.seconds),
                   intervals=tr.intervals, build_seconds=np.array(tr.build_seconds),

@@ -227,7 +227,7 @@ def _check_arrays(arrays: dict, head: dict, expect) -> None:
         dtype, ndim = want if isinstance(want, tuple) else (want, None)
         a = arrays[n]
         if dtype is not None and not np.issubdtype(a.dtype, dtype):
-            raise Damaged(f"array {n!r} is {a.dtype}, expected {np.dtype(dtype).name}")
+            raise Damaged(f"array {n!r} is {a.dtype}, expected {getattr(dtype, '__name__', dtype)}")
         if ndim is not None and a.ndim != ndim:
             raise Damaged(f"array {n!r} is {a.ndim}-D, expected {ndim}-D")
     if array_digest(arrays) != head.get("sha256"):
