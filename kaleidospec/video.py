@@ -25,9 +25,9 @@ Resume.  Every file is written atomically (temporary file + rename) and each sta
 ends with a seal of its files' checksums (``checks/``): a raw frame is done when its seal matches
 its image, sidecar and truth, a reconstructed frame when its seal matches its cube and metrics.
 A new run on the same folder skips finished frames; an interrupted frame is redone from the
-start, and so is one whose files no longer match their seal (one warning line names it); a warm start after
-an interruption reads the previous frame's cube back (float32 EXR, lossless, so the result is
-the same as without the interruption).  ``video.json`` pins the settings: a run with other
+start, and so is one whose files no longer match their seal (one warning line names it); a
+warm start after an interruption reads the previous frame's cube back (float32 EXR, lossless,
+so the result is the same as without the interruption).  ``video.json`` pins the settings: a run with other
 settings on the same folder is refused.
 
 Layout of the output folder::

@@ -22,7 +22,8 @@ model was fitted to.
 
 Cache files: ``<cache>/maps-<design hash>-<key>.npz``, checked entries of :mod:`recon.io.cache`
 (written atomically with a checksum; one that fails its checks on load is removed with a warning
-and traced again), the key hashing the band intervals, views, seed and trace settings.  The cache folder is ``$KALEIDOSPEC_CACHE`` or ``~/.cache/kaleidospec``.
+and traced again), the key hashing the band intervals, views, seed and trace settings.  The
+cache folder is ``$KALEIDOSPEC_CACHE`` or ``~/.cache/kaleidospec``.
 """
 
 from __future__ import annotations

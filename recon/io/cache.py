@@ -26,7 +26,8 @@ and the reader returns ``None``: the caller rebuilds it.  Removal only unlinks t
 read: if another process has meanwhile replaced it (a different inode), the new one stays.
 
 A cache folder that cannot be written stops the command before any long work: :func:`check_folder`
-raises :class:`recon.errors.InputError` with one line (the command line's exit status 2).
+raises :class:`recon.errors.InputError` with one line (the command line's exit status 2).  It
+also removes the temporaries of writers killed mid-write (older than :data:`STALE_S`).
 """
 
 from __future__ import annotations
@@ -357,5 +358,22 @@ def check_folder(folder) -> Path:
         why = err.strerror or errno.errorcode.get(err.errno or 0, str(err))
         raise InputError(f"the cache folder {p} cannot be written ({why}); set "
                          "KALEIDOSPEC_CACHE to a writable folder") from None
+    _sweep_temporaries(p)
     _CHECKED.add(k)
     return p
+
+
+#: Temporaries older than this (s) belong to a writer that was killed: no write takes so long.
+STALE_S = 6 * 3600
+
+
+def _sweep_temporaries(folder: Path) -> None:
+    """Remove what killed writers left: ``.<name>.<random>.tmp<suffix>`` files
+    (:func:`recon.io.atomic.atomic_path`) older than :data:`STALE_S`."""
+    import time
+
+    now = time.time()
+    for t in folder.glob(".*.tmp*"):
+        with contextlib.suppress(OSError):
+            if t.is_file() and now - t.stat().st_mtime > STALE_S:
+                t.unlink()

@@ -239,3 +239,19 @@ def test_bad_arguments():
         cache.write_npz("x.npz", {"o": np.array([None, 1], dtype=object)}, **KW)
     with pytest.raises(InputError):
         cache.write_json("x.json", {"_entry": 1}, **KW)
+
+
+def test_temporaries_of_killed_writers_are_swept(tmp_path):
+    import time
+
+    old, new = tmp_path / ".e.npz.ab12.tmp.npz", tmp_path / ".f.npz.cd34.tmp.npz"
+    for t in (old, new):
+        t.write_bytes(b"PK")
+    past = time.time() - cache.STALE_S - 60
+    os.utime(old, (past, past))
+    keep = tmp_path / "e.npz"
+    cache.write_npz(keep, _arrays(), **KW)
+    os.utime(keep, (past, past))
+    cache.check_folder(tmp_path)
+    # A writer still at work (a recent temporary) and the entries themselves are left alone.
+    assert sorted(p.name for p in tmp_path.iterdir()) == [new.name, "e.npz"]
