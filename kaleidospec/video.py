@@ -27,8 +27,8 @@ its image, sidecar and truth, a reconstructed frame when its seal matches its cu
 A new run on the same folder skips finished frames; an interrupted frame is redone from the
 start, and so is one whose files no longer match their seal (one warning line names it); a
 warm start after an interruption reads the previous frame's cube back (float32 EXR, lossless,
-so the result is the same as without the interruption).  ``video.json`` pins the settings: a run with other
-settings on the same folder is refused.
+so the result is the same as without the interruption).  ``video.json`` pins the settings: a
+run with other settings on the same folder is refused.
 
 Layout of the output folder::
 

@@ -35,7 +35,6 @@ from __future__ import annotations
 import contextlib
 import errno
 import hashlib
-import io
 import json
 import os
 import sys
@@ -110,12 +109,13 @@ def _check_header(head, *, kind, design_hash, version, key) -> None:
 
 
 # ------------------------------------------------------------------------------- writing
-def _write_bytes(path: Path, data: bytes, protect=()) -> Path:
+def _write(path: Path, write, protect=()) -> Path:
+    """``write(fh)`` into a temporary file next to ``path``, flushed to disk, then renamed."""
     from recon.io.atomic import atomic_path
 
     with atomic_path(path, protect=protect) as tmp:
         with open(tmp, "wb") as fh:
-            fh.write(data)
+            write(fh)
             fh.flush()
             os.fsync(fh.fileno())
     return path
@@ -148,10 +148,9 @@ def write_npz(path, arrays: Mapping[str, np.ndarray], *, kind: str, design_hash=
     head = _header(kind, design_hash, version, key, meta)
     head["arrays"] = {n: [a.dtype.str, list(a.shape)] for n, a in arrs.items()}
     head["sha256"] = array_digest(arrs)
-    buf = io.BytesIO()
     save = np.savez_compressed if compress else np.savez
-    save(buf, **arrs, **{ENTRY: np.frombuffer(json.dumps(head).encode(), np.uint8)})
-    return _write_bytes(Path(path), buf.getvalue(), protect)
+    header = np.frombuffer(json.dumps(head).encode(), np.uint8)
+    return _write(Path(path), lambda fh: save(fh, **arrs, **{ENTRY: header}), protect)
 
 
 def write_json(path, obj: dict, *, kind: str, design_hash=None, version=None, key=None,
@@ -166,7 +165,7 @@ def write_json(path, obj: dict, *, kind: str, design_hash=None, version=None, ke
     head = _header(kind, design_hash, version, key, meta)
     head["sha256"] = _json_digest(obj)
     text = json.dumps({**obj, ENTRY: head}, indent=indent, sort_keys=True, allow_nan=False)
-    return _write_bytes(Path(path), (text + "\n").encode(), protect)
+    return _write(Path(path), lambda fh: fh.write((text + "\n").encode()), protect)
 
 
 def seal(path, files: Mapping[str, os.PathLike | str], *, kind: str, design_hash=None,

@@ -614,13 +614,17 @@ def test_full_output_disk_leaves_no_partial_output(base, cache_copy, tmp_path, m
                .astype(np.float32), base["design"].wavelengths)
     before = {p: cache.file_digest(p) for p in [cube, *cache_copy.iterdir()]}
 
-    def full(*a, **k):
-        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+    calls = []
+
+    def full(path, *a, **k):
+        calls.append(path)
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
 
     monkeypatch.setattr(recon.report, "write_png", full)
     argv = [a if a != "colorchecker" else str(cube) for a in RUN]
     code, out, err = _cli(argv + ["--out", tmp_path / "out" / "run"], capsys)
     assert code == 2, err
+    assert len(calls) == 1      # the outputs were being written when the disk filled up
     lines = err.strip().splitlines()
     assert len(lines) == 1 and os.strerror(errno.ENOSPC) in lines[0]
     assert not (tmp_path / "out").exists()
