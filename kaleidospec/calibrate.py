@@ -396,8 +396,9 @@ def calibration_file(design, cache_dir=None) -> Path:
 
 
 def is_cached(design, cache_dir=None) -> bool:
-    """Whether a calibration of ``design`` is in the cache (:func:`calibrate` would load it)."""
+    """Whether a calibration of ``design`` is in the cache (:func:`calibrate` would load it; a
+    cut or foreign entry is not, :func:`recon.calibration.store.is_cached`)."""
     from kaleidospec.instrument import cache_dir as folder
-    from recon.calibration import calibration_path
+    from recon.calibration.store import is_cached as cached
 
-    return calibration_path(folder(cache_dir), design.hash).is_file()
+    return cached(folder(cache_dir), design.hash)

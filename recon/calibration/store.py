@@ -660,6 +660,18 @@ def save_cached(cache_dir, cal: Calibration) -> Path:
     return npz
 
 
+def is_cached(cache_dir, design_hash) -> bool:
+    """Whether the cache holds an entry for the design that :func:`load_cached` will most
+    likely load: the sidecar there, the ``.npz`` readable with this design's hash and
+    :func:`code_version` in its header (its arrays and checksum are checked on load)."""
+    from recon.io.cache import read_header
+
+    npz, side = _paths(calibration_path(cache_dir, design_hash))
+    return side.is_file() and read_header(npz, kind="calibration",
+                                          design_hash=check_hash(design_hash),
+                                          version=code_version()) is not None
+
+
 def load_cached(cache_dir, design_hash) -> Calibration | None:
     """The cached calibration of a design, or ``None`` when there is none yet, or when the entry
     fails a check (:func:`recon.io.cache.read_npz`: cut short, garbled, another design's or code

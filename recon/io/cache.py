@@ -46,7 +46,8 @@ import numpy as np
 
 from recon.errors import InputError
 
-__all__ = ["FORMAT", "ENTRY", "Damaged", "write_npz", "read_npz", "write_json", "read_json",
+__all__ = ["FORMAT", "ENTRY", "Damaged", "write_npz", "read_npz", "read_header", "write_json",
+           "read_json",
            "seal", "check_seal", "file_digest", "array_digest", "discard", "check_folder",
            "warn"]
 
@@ -276,6 +277,20 @@ def read_npz(path, *, kind: str, design_hash=None, version=None, key=None,
         discard(p, str(exc), companions=companions, stat=st)
         return None
     return (arrays, head.get("meta")) if meta else arrays
+
+
+def read_header(path, *, kind: str, design_hash=None, version=None, key=None) -> dict | None:
+    """The header of the ``.npz`` entry ``path`` when it is readable and is the expected one
+    (cache, design, version, key), else None; nothing is removed and nothing said.  A quick
+    look (the arrays and the checksum are not read): whether :func:`read_npz` will most likely
+    load it."""
+    try:
+        with np.load(Path(path), allow_pickle=False) as z:
+            head = json.loads(bytes(z[ENTRY]).decode())
+        _check_header(head, kind=kind, design_hash=design_hash, version=version, key=key)
+    except Exception:    # noqa: BLE001 - any failure means "not a usable entry"
+        return None
+    return head
 
 
 def read_json(path, *, kind: str, design_hash=None, version=None, key=None,

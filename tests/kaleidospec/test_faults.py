@@ -213,6 +213,7 @@ def test_run_with_a_truncated_calibration_warns_once_and_finishes(base, cache_co
     code, out, err = _cli(RUN + ["--out", tmp_path / "out"], capsys)
     assert code in (0, None), err
     _one_warning(err, npz.name)
+    assert "calibration: rendered" in out      # the report says it was calibrated again
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == \
         sorted(p.name for p in base["out"].iterdir())
     _assert_same_calibration(load_cached(cache_copy, base["design"].hash), base["cal"])
@@ -220,7 +221,7 @@ def test_run_with_a_truncated_calibration_warns_once_and_finishes(base, cache_co
                                   read_cube(base["out"] / "cube_1views.exr")[0])
     # The rebuilt entry is sound: the next run loads it silently.
     code, out, err = _cli(RUN + ["--out", tmp_path / "out2"], capsys)
-    assert code in (0, None) and _warnings(err) == []
+    assert code in (0, None) and _warnings(err) == [] and "calibration: cached" in out
 
 
 CAL_FAULTS = {**{k: v for k, v in NPZ_FAULTS.items() if k != "truncated"},

@@ -8,8 +8,8 @@ import pytest
 
 from recon.calibration.geometry import apply_homography
 from recon.calibration.store import (ARRAY_FIELDS, JSON_FIELDS, Calibration, build_calibration,
-                                     calibration_path, load_cached, load_calibration,
-                                     save_cached, save_calibration)
+                                     calibration_path, is_cached, load_cached,
+                                     load_calibration, save_cached, save_calibration)
 from recon.errors import InputError
 
 
@@ -64,7 +64,9 @@ def test_cache(tmp_path, capsys):
     p = calibration_path(tmp_path, cal.design_hash)
     assert p.parent == tmp_path and cal.design_hash in p.name
     assert load_cached(tmp_path, cal.design_hash) is None
+    assert not is_cached(tmp_path, cal.design_hash)
     assert save_cached(tmp_path, cal) == p
+    assert is_cached(tmp_path, cal.design_hash)
     back = load_cached(tmp_path, cal.design_hash)
     assert back.design_hash == cal.design_hash and back.created == cal.created
     np.testing.assert_array_equal(back.mask_images, cal.mask_images)
@@ -79,6 +81,7 @@ def test_cache(tmp_path, capsys):
     npz = save_cached(tmp_path, other)
     npz.rename(calibration_path(tmp_path, "eeee"))
     npz.with_suffix(".json").rename(calibration_path(tmp_path, "eeee").with_suffix(".json"))
+    assert not is_cached(tmp_path, "eeee")
     assert load_cached(tmp_path, "eeee") is None
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 1 and "calibration-eeee-" in err[0] and "'ffff'" in err[0]
