@@ -46,10 +46,9 @@ import numpy as np
 
 from recon.errors import InputError
 
-__all__ = ["FORMAT", "ENTRY", "Damaged", "write_npz", "read_npz", "read_header", "write_json",
-           "read_json",
-           "seal", "check_seal", "file_digest", "array_digest", "discard", "check_folder",
-           "warn"]
+__all__ = ["FORMAT", "ENTRY", "STALE_S", "Damaged", "write_npz", "read_npz", "read_header",
+           "write_json", "read_json", "seal", "check_seal", "file_digest", "array_digest",
+           "discard", "check_folder", "warn"]
 
 FORMAT = "kaleidospec-cache"
 #: Name of the header inside an entry (array name in ``.npz``, key in ``.json``).
@@ -202,7 +201,8 @@ def discard(path, reason: str, *, companions: Iterable = (), stat=None) -> None:
         for c in companions:
             with contextlib.suppress(OSError):
                 Path(c).unlink()
-    warn(f"{p}: damaged cache entry ({reason}); removed, it is rebuilt")
+    what = "removed, it is rebuilt" if same else "another process has replaced it since"
+    warn(f"{p}: damaged cache entry ({reason}); {what}")
 
 
 def _check_arrays(arrays: dict, head: dict, expect) -> None:
