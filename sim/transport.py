@@ -55,7 +55,8 @@ TRACE = {"degree": 5, "aperture_rays": 16, "tolerance_px": 0.003}
 
 
 def cache_dir() -> Path:
-    """``$KALEIDOSPEC_CACHE`` or ``~/.cache/kaleidospec`` (created on demand)."""
+    """``$KALEIDOSPEC_CACHE`` or ``~/.cache/kaleidospec`` (created on demand, checked to accept
+    new files: :func:`recon.io.cache.check_folder`)."""
     from recon.io.cache import check_folder
 
     # One line (exit 2 on the command line) when it cannot be written, before any long work.

@@ -43,6 +43,6 @@ __all__ = [
     "load_cached", "load_calibration", "mask_images", "measure_leads", "measurements", "noise_rms",
     "normalise_offsets", "normalise_offsets_phase", "operator_from_calibration",
     "patch_spectra", "photon_transfer", "read_measurements", "refine_homography",
-    "save_cached", "save_calibration", "to_view_coordinates", "unmask", "view_homographies", "view_masks",
-    "with_leads",
+    "save_cached", "save_calibration", "to_view_coordinates", "unmask", "view_homographies",
+    "view_masks", "with_leads",
 ]
