@@ -175,16 +175,17 @@ def calibrate(design, *, model: str | None = None, cache_dir=None, progress: boo
     """
     from kaleidospec.instrument import cache_dir as folder
     from kaleidospec.models import DEFAULT_MODEL, holds
-    from recon.calibration import calibration_path, load_cached, save_calibration
+    from recon.calibration import load_cached, save_cached
 
     model = DEFAULT_MODEL if model is None else model
     cdir = folder(cache_dir)
     if not force:
+        # None also for a damaged entry (removed with one warning line): calibrated again.
         cal = load_cached(cdir, design.hash)
         if cal is not None and holds(cal, model):
             return cal
     cal = calibrate_from_captures(design, models=(model,), repeats=repeats, progress=progress)
-    save_calibration(calibration_path(cdir, design.hash), cal)
+    save_cached(cdir, cal)
     return cal
 
 
@@ -391,8 +392,9 @@ def calibration_file(design, cache_dir=None) -> Path:
 
 
 def is_cached(design, cache_dir=None) -> bool:
-    """Whether a calibration of ``design`` is in the cache (:func:`calibrate` would load it)."""
+    """Whether a calibration of ``design`` is in the cache (:func:`calibrate` would load it; a
+    cut or foreign entry is not, :func:`recon.calibration.store.is_cached`)."""
     from kaleidospec.instrument import cache_dir as folder
-    from recon.calibration import calibration_path
+    from recon.calibration.store import is_cached as cached
 
-    return calibration_path(folder(cache_dir), design.hash).is_file()
+    return cached(folder(cache_dir), design.hash)
