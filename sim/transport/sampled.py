@@ -27,35 +27,45 @@ How the S samples of a pixel are drawn is the ``sampler`` (:func:`pixel_samples`
 every pixel's samples over its area and its band and lowers the per-pixel error of a frame at the
 same cost (``tests/sim/transport/test_sampled.py``).
 
-It is built in memory when a check needs it and never cached: only the exact transport is
-(:func:`sim.transport.exact.load_or_build`).
+Cache files: ``<cache>/sampled-<design hash>-<key>.npz`` (``np.savez_compressed``, written to a
+temporary file in the same folder and renamed; read with ``allow_pickle=False``), where the key
+hashes the cube shape, samples per pixel, band intervals, views, seed and sampler. The cache
+folder is ``$KALEIDOSPEC_CACHE`` or ``~/.cache/kaleidospec``.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from recon.errors import InputError
 from recon.kernels import cores
 from sim.bands import band_intervals
+from sim.transport.exact import cache_dir
 
 __all__ = [
     "Transport",
     "sensor_pixels",
     "trace_band",
     "build_transport",
+    "load_or_build",
+    "render_cached",
     "SAMPLERS",
     "check_sampler",
     "pixel_samples",
     "STATS",
 ]
 
-#: Counters for tests and benchmarks: how many bands and transports were traced.
-STATS = {"traced_bands": 0, "built": 0}
+#: Counters for tests and benchmarks: how many bands were traced / loaded from disk.
+STATS = {"traced_bands": 0, "loaded": 0, "built": 0}
+
+_FORMAT = 1
 
 
 def sensor_pixels(design, views=None, crop=None) -> np.ndarray:
@@ -90,6 +100,7 @@ class Transport:
     tex: list
     w: list
     build_seconds: float = 0.0
+    path: Path | None = None
     _seg: list | None = None
 
     def _matrix(self, l: int):
@@ -265,6 +276,15 @@ def trace_band(design, shape, interval, spp: int, seed: int = 0, pixels=None,
             wsum.astype(np.float32))
 
 
+def _key(design, shape, intervals, spp, seed, pixels_desc, sampler) -> str:
+    blob = json.dumps({
+        "format": _FORMAT, "design": design.hash, "shape": [int(s) for s in shape],
+        "intervals": np.round(np.asarray(intervals, np.float64), 6).tolist(), "spp": int(spp),
+        "seed": int(seed), "pixels": pixels_desc, "sampler": sampler,
+    }, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
 def build_transport(design, shape, wavelengths=None, *, spp: int = 4, seed: int = 0,
                     sampling: str = "box", sampler: str = "independent", crop=None,
                     progress: bool = False) -> Transport:
@@ -278,9 +298,9 @@ def build_transport(design, shape, wavelengths=None, *, spp: int = 4, seed: int 
     pix, tex, w = [], [], []
     it = range(wl.size)
     if progress:
-        from tqdm import tqdm
+        from recon.progress import progress_bar
 
-        it = tqdm(it, desc="transport", unit="band")
+        it = progress_bar(it, desc="transport", unit="band", leave=True)
     for l in it:
         inside = (wl[l] >= design.filter_min_nm) and (wl[l] <= design.filter_max_nm)
         if not inside or iv[l, 1] < iv[l, 0]:
@@ -294,3 +314,91 @@ def build_transport(design, shape, wavelengths=None, *, spp: int = 4, seed: int 
     return Transport(design.hash, (int(shape[0]), int(shape[1])),
                      (design.sensor_height_px, design.sensor_width_px), wl, iv, int(spp),
                      pix, tex, w, build_seconds=time.perf_counter() - t0)
+
+
+def _save(tr: Transport, path: Path, key: str) -> None:
+    from recon.io.cache import write_npz
+
+    arrays = {
+        "format": np.array(_FORMAT), "design_hash": np.array(tr.design_hash),
+        "shape": np.array(tr.shape, np.int64), "sensor": np.array(tr.sensor, np.int64),
+        "wavelengths": tr.wavelengths, "intervals": tr.intervals, "spp": np.array(tr.spp),
+        "build_seconds": np.array(tr.build_seconds),
+    }
+    for l in range(len(tr.pix)):
+        # Pixel indices are sorted: their differences are small and compress well.
+        arrays[f"dpix_{l}"] = np.diff(tr.pix[l], prepend=0).astype(np.int32)
+        arrays[f"tex_{l}"] = tr.tex[l]
+        arrays[f"w_{l}"] = tr.w[l]
+    write_npz(path, arrays, kind="sampled", design_hash=tr.design_hash, version=_FORMAT, key=key,
+              compress=True)
+
+
+def _load(path: Path, design_hash: str, key: str) -> Transport | None:
+    """The entry at ``path``, or None (none, or a damaged or foreign one: removed with one
+    warning line, :func:`recon.io.cache.read_npz`)."""
+    from recon.io.cache import read_npz
+
+    z = read_npz(path, kind="sampled", design_hash=design_hash, version=_FORMAT, key=key,
+                 expect={"shape": (np.integer, 1), "sensor": (np.integer, 1),
+                         "wavelengths": (np.floating, 1), "intervals": (np.floating, 2)})
+    if z is None:
+        return None
+    L = int(z["wavelengths"].size)
+    if any(f"{p}_{l}" not in z for p in ("dpix", "tex", "w") for l in range(L)):
+        from recon.io.cache import discard
+
+        discard(path, "incomplete: a band's arrays are missing")
+        return None
+    pix = [np.cumsum(z[f"dpix_{l}"], dtype=np.int64).astype(np.int32) for l in range(L)]
+    return Transport(design_hash, tuple(int(v) for v in z["shape"]),
+                     tuple(int(v) for v in z["sensor"]), z["wavelengths"], z["intervals"],
+                     int(z["spp"]), pix, [z[f"tex_{l}"] for l in range(L)],
+                     [z[f"w_{l}"] for l in range(L)],
+                     build_seconds=float(z["build_seconds"]), path=path)
+
+
+_MEMO: dict[str, Transport] = {}
+
+
+def load_or_build(design, shape, wavelengths=None, *, spp: int = 4, seed: int = 0,
+                  sampling: str = "box", sampler: str = "independent", crop=None,
+                  progress: bool = False, use_disk: bool = True) -> Transport:
+    """The transport for this design/shape/bands: from memory, from the cache folder, or traced
+    (and then written to the cache folder atomically)."""
+    wl = design.wavelengths if wavelengths is None else np.asarray(wavelengths, np.float64)
+    iv = band_intervals(design, wl, sampling)
+    key = _key(design, shape, iv, spp, seed, [list(design.views), crop], sampler)
+    if key in _MEMO:
+        return _MEMO[key]
+    path = cache_dir() / f"sampled-{design.hash}-{key}.npz"
+    tr = None
+    if use_disk:
+        tr = _load(path, design.hash, key)  # None: none yet, or a damaged one (removed)
+        if tr is not None:
+            STATS["loaded"] += 1
+    if tr is None:
+        tr = build_transport(design, shape, wl, spp=spp, seed=seed, sampling=sampling,
+                             sampler=sampler, crop=crop, progress=progress)
+        if use_disk:
+            _save(tr, path, key)
+            tr.path = path
+    _MEMO[key] = tr
+    return tr
+
+
+def render_cached(design, cube: np.ndarray, wavelengths, *, spp: int = 4, seed: int = 0,
+                  sampling: str = "box", sampler: str = "independent", progress: bool = False,
+                  crop=None) -> np.ndarray:
+    """Per-band sensor irradiance (L, Hs, Ws) float32 of ``cube`` (H, W, L) from the cache.
+
+    ``wavelengths`` are the cube's band centres; they must be bands of the design (bands
+    outside the filter's pass band give dark images). The first call for a design/cube shape
+    traces the optics (:func:`load_or_build`); later calls are gathers.
+    """
+    from sim.bands import check_cube
+
+    cube, wl = check_cube(design, cube, wavelengths)
+    tr = load_or_build(design, cube.shape[:2], wl, spp=spp, seed=seed, sampling=sampling,
+                       sampler=sampler, crop=crop, progress=progress)
+    return tr.apply(cube)

@@ -1,4 +1,4 @@
-"""The Monte Carlo (sampled) transport: its samplers and its draw."""
+"""The Monte Carlo (sampled) transport: its samplers, its cache, and its draw."""
 
 from __future__ import annotations
 
@@ -7,6 +7,16 @@ import pytest
 
 pytest.importorskip("mitsuba")
 pytestmark = pytest.mark.mitsuba
+
+
+@pytest.fixture()
+def cache(tmp_path, monkeypatch):
+    from sim.transport import sampled
+
+    monkeypatch.setenv("KALEIDOSPEC_CACHE", str(tmp_path))
+    sampled._MEMO.clear()
+    yield tmp_path
+    sampled._MEMO.clear()
 
 
 @pytest.fixture(scope="module")
@@ -25,12 +35,12 @@ def _scene(d, bands):
     return np.stack([a, b][:len(bands)], axis=2).astype(np.float32)
 
 
-def test_sobol_sampler_is_closer_to_the_converged_frame_than_independent(design):
+def test_sobol_sampler_is_closer_to_the_converged_frame_than_independent(design, cache):
     """Stratified (randomised QMC) samples estimate each pixel's integral better than i.i.d.
     ones at the same count: the frame of a 16-sample Sobol trace is nearer a 256-sample
     reference than an independent 16-sample trace (by more than 15 %), and both are unbiased
     (same total)."""
-    from sim.transport.sampled import build_transport
+    from sim.transport.sampled import load_or_build
 
     d = design
     wl = d.wavelengths[[2, 8]]
@@ -40,8 +50,8 @@ def test_sobol_sampler_is_closer_to_the_converged_frame_than_independent(design)
     win = np.s_[:, crop[0]:crop[0] + crop[2], crop[1]:crop[1] + crop[3]]
 
     def frame(spp, sampler, seed):
-        tr = build_transport(d, cube.shape[:2], wl, spp=spp, sampler=sampler, seed=seed,
-                             crop=crop)
+        tr = load_or_build(d, cube.shape[:2], wl, spp=spp, sampler=sampler, seed=seed,
+                           crop=crop, use_disk=False)
         return tr.apply(cube)[win].astype(np.float64)
 
     ref = frame(256, "sobol", seed=99)
@@ -54,25 +64,24 @@ def test_sobol_sampler_is_closer_to_the_converged_frame_than_independent(design)
     assert err["sobol"] < 0.85 * err["independent"], err
 
 
-def test_sobol_sampler_is_deterministic_and_told_apart(design):
-    """The same seed and sampler trace the same transport; another sampler another one."""
+def test_sobol_sampler_is_deterministic_and_keyed_apart(design, cache):
     from recon.errors import InputError
-    from sim.transport.sampled import build_transport
+    from sim.transport import sampled as transport
 
     d = design
     wl = d.wavelengths[[4]]
     cube = _scene(d, wl)
     r0, c0 = d.view_rect(0)[:2]
     crop = (r0 + 40, c0 + 40, 24, 24)
-    def frame(sampler):
-        return build_transport(d, cube.shape[:2], wl, spp=4, sampler=sampler,
-                               crop=crop).apply(cube)
-
-    a = frame("sobol")
-    np.testing.assert_array_equal(a, frame("sobol"))
-    assert not np.array_equal(a, frame("independent"))
+    a = transport.render_cached(d, cube, wl, spp=4, sampler="sobol", crop=crop)
+    transport._MEMO.clear()
+    b = transport.build_transport(d, cube.shape[:2], wl, spp=4, sampler="sobol", crop=crop)
+    np.testing.assert_array_equal(a, b.apply(cube))
+    c = transport.render_cached(d, cube, wl, spp=4, sampler="independent", crop=crop)
+    assert not np.array_equal(a, c)
+    assert len(list(cache.glob(f"sampled-{d.hash}-*.npz"))) == 2
     with pytest.raises(InputError, match="sampler"):
-        frame("halton")
+        transport.render_cached(d, cube, wl, spp=4, sampler="halton", crop=crop)
 
 
 def test_sobol_samples_are_stratified_in_every_dimension():
