@@ -36,7 +36,7 @@ def band_intervals(design, wavelengths=None, sampling: str = "box") -> np.ndarra
     ``box``: the whole band, between midpoints of neighbouring centres, clipped to the filter
     (what a sensor pixel integrates; bands then carry their own dispersion blur). ``centre``:
     the band centre only (a monochromatic image per band, the discrete forward model of
-    DESIGN.md §2).
+    paper Eq. 1-5).
     """
     wl = design.wavelengths if wavelengths is None else np.asarray(wavelengths, np.float64)
     if sampling == "centre":

@@ -1,7 +1,7 @@
 """The instrument's design: every physical parameter of the kaleidoscopic CASSI in one record.
 
-:class:`Design` is a frozen dataclass whose defaults are the paper's values (Kim et al.,
-"Multisampling compressive video spectroscopy", Sec. 4; see ``DESIGN.md`` §1). Everything else in
+:class:`Design` is a frozen dataclass whose defaults are the paper's values (Jeon, Choi and Kim,
+"Multisampling compressive video spectroscopy", Sec. 4; see docs/design.md). Everything else in
 ``sim`` (the Mitsuba optics, the transport cache, the sensor) reads its parameters from a
 ``Design``, and every raw frame carries :attr:`Design.hash` so that a cache or a calibration
 capture can be matched with the design that made it.

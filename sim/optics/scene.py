@@ -1,6 +1,6 @@
 """Assemble the Mitsuba scene of the instrument from a :class:`sim.optics.design.Design`.
 
-Light travels along +z and meets, in order (DESIGN.md §1, paper Fig. 2):
+Light travels along +z and meets, in order (paper Fig. 2):
 
 =====================  =========================================================================
 z (mm)                 element

@@ -12,7 +12,7 @@ from recon.errors import InputError
 from sim.optics.design import PRESETS, VIEW_GRID, Design, get_design, parse_overrides
 from sim.optics.glass import apex_for_span
 
-# Schott N-BK7 Sellmeier coefficients as printed in DESIGN.md §1 (C in µm²).
+# Schott N-BK7 Sellmeier coefficients (Schott data sheet; C in µm²).
 B = (1.03961212, 0.231792344, 1.01046945)
 C = (0.00600069867, 0.0200179144, 103.560653)
 
