@@ -458,7 +458,9 @@ class Reconstructor:
         r"""Reconstruct one frame → (cube (H, W, L), info).
 
         ``x0`` (H, W, L) warm-starts the solver; ``mu`` > 0 (with ``x0``) adds the temporal
-        term :math:`\mu\lVert f - x_0\rVert_1` (GAP-TV only, :mod:`recon.temporal`).
+        term :math:`\mu\lVert f - x_0\rVert_1` (:mod:`recon.temporal`: GAP carries its
+        iteration's state into it; the other solvers take it as a prior around the spatial
+        one, :class:`~recon.temporal.TemporalPrior`).
         """
         if self.tau is None and self.prior == "tv":
             raise InputError("the TV weight follows the noise: measure a frame "
@@ -467,14 +469,23 @@ class Reconstructor:
         x0_bm = None if x0 is None else np.ascontiguousarray(
             np.moveaxis(np.asarray(x0, np.float32), 2, 0))
         g = np.asarray(g, np.float32)
-        if mu > 0 and x0_bm is not None:
+        if mu > 0 and x0_bm is not None and self.solver == "gap-tv":
             from recon.temporal import gap_tv_temporal
 
-            if self.solver != "gap-tv":
-                raise InputError("the temporal TV term is implemented for gap-tv only")
             res = gap_tv_temporal(self.op, g, ref=x0_bm, mu=float(mu), iters=int(iters),
                                   x0=x0_bm, callback=callback, **self.prior_options(),
                                   **self.solver_options())
+        elif mu > 0 and x0_bm is not None:
+            # Any other solver: the temporal term as a prior around the spatial one.
+            from recon.priors import TVPrior
+            from recon.solvers import solve
+            from recon.temporal import TemporalPrior
+
+            spatial = self.prior_options().get("prior") or TVPrior(self.tau,
+                                                                   threads=self.threads)
+            res = solve(self.solver, self.op, g, iters=int(iters), x0=x0_bm,
+                        callback=callback, prior=TemporalPrior(spatial, x0_bm, float(mu)),
+                        **self.solver_options())
         else:
             from recon.solvers import solve
 

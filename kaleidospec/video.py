@@ -459,6 +459,17 @@ def _check_manifest(lay: VideoLayout, config: dict) -> dict | None:
     return old
 
 
+def default_solver(design, operator: str = "calibrated") -> str:
+    """The video's solver when none is named: GAP-TV, or FISTA-TV with the exact operator
+    (``operator="oracle"``) or a calibration that carries the lens's PSF
+    (:func:`kaleidospec.calibrate.deconvolution_radii`): such a calibration blurs its rows
+    together, like the exact operator, and GAP-TV's diagonal projection holds for neither."""
+    from kaleidospec.calibrate import deconvolution_radii
+
+    return "fista-tv" if operator == "oracle" or deconvolution_radii(design) is not None \
+        else "gap-tv"
+
+
 def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | None = None,
               frames: int | None = None, fps: float = 10.0, views: int = 5,
               solver: str | None = None, iters: int = 15, cold_iters: int = 50,
@@ -520,7 +531,7 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
         Render and reconstruction statistics and the metrics summary.
     """
     from kaleidospec import instrument
-    from kaleidospec.calibrate import calibrate, calibration_file, deconvolution_radii
+    from kaleidospec.calibrate import calibrate, calibration_file
     from kaleidospec.report import write_json
     from recon.app import solver_names
 
@@ -534,10 +545,7 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
         check_weight(tau, "--tau")
     d = instrument.get_design(design, overrides)
     if solver is None:
-        # A calibration that carries the lens's PSF blurs its rows together, like the exact
-        # operator: GAP-TV's diagonal projection does not hold for either.
-        solver = "fista-tv" if operator == "oracle" or deconvolution_radii(d) is not None \
-            else "gap-tv"
+        solver = default_solver(d, operator)
     if solver not in solver_names():
         raise InputError(f"--solver must be one of {', '.join(solver_names())}, got {solver!r}")
     if operator == "oracle":
@@ -549,8 +557,6 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
             raise InputError(f"--{name} must be an integer >= {lo}, got {v!r}")
     if not (math.isfinite(float(temporal)) and temporal >= 0):
         raise InputError(f"--temporal must be >= 0, got {temporal}")
-    if temporal > 0 and solver != "gap-tv":
-        raise InputError("--temporal is implemented for the gap-tv solver only")
     if video_format not in ("gif", "webp"):
         raise InputError(f"--format must be gif or webp, got {video_format!r}")
     if scheduler is not None and not str(scheduler).startswith(("tcp://", "tls://", "inproc://",
