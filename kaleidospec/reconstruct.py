@@ -38,17 +38,14 @@ import numpy as np
 from recon.errors import InputError
 
 __all__ = ["DEFAULTS", "TAU_PER_VIEW", "TAU_PER_NOISE", "first_views", "tv_weight",
-           "prior_weight", "unit_row_scale", "normalised", "measurement_noise", "design_noise", "solve_views",
-           "calibrated_operator", "frame_measurements", "reconstruct_views",
+           "prior_weight", "unit_row_scale", "normalised", "measurement_noise", "design_noise",
+           "solve_views", "calibrated_operator", "frame_measurements", "reconstruct_views",
            "reconstruct_oracle", "Reconstructor"]
 
 #: Reconstruction defaults: FISTA-TV run until the relative change of the cube
-#: :math:`\|f_k-f_{k-1}\|/\|f_{k-1}\|` falls below ``tol``, at most ``iters`` iterations.  A fixed
-#: 100 iterations left ``paper`` far from converged (5 views: 24.77 dB where the converged
-#: solution gives 25.6, the exact operator 25.90 where it gives 27.9; one view 16.78 where it
-#: gives 19.5); ``tol = 1e-3`` stops within 0.1 dB of the PSNR that 400 iterations reach
-#: (``small``, one view: iteration 153 of the test design; ``paper``, five views: iteration
-#: 220).  See docs/figures.md, "Convergence of the default reconstruction".
+#: :math:`\|f_k-f_{k-1}\|/\|f_{k-1}\|` falls below ``tol``, at most ``iters`` iterations: a fixed
+#: count either stops far from converged (``paper``) or runs on after it, while ``tol = 1e-3``
+#: stops close to the PSNR the cap reaches (docs/reconstruction.md, "The stopping rule").
 DEFAULTS = {"solver": "fista-tv", "iters": 400, "tol": 1e-3, "tau": None}
 #: The application's TV weight rule, in its unit-row-norm units (:func:`tv_weight`); the
 #: solvers' own defaults and the weight's valid range are :mod:`recon.priors.tv`'s.
@@ -57,9 +54,9 @@ DEFAULTS = {"solver": "fista-tv", "iters": 400, "tol": 1e-3, "tau": None}
 TAU_PER_VIEW = {"fista-tv": 0.005, "twist": 0.005, "admm": 0.005}
 #: TV weight per view and per unit of the measurement's rms noise (unit-row-norm units), for the
 #: solvers whose data term is a least-squares fit: :math:`\tau = \kappa\, n\, \bar\sigma`.
-#: Chosen on a scene no reported figure uses (the colour wheel, ``small``, five views; see
-#: docs/figures.md): it gives ``small`` 0.5-0.8 and ``paper`` about 2 times the fixed weight.
-#: ADMM minimises the same objective as FISTA and TwIST, so it shares their rule.
+#: Chosen on a scene no reported figure uses (the colour wheel, ``small``, five views;
+#: docs/reconstruction.md, "The TV weight follows the noise").  ADMM minimises the same
+#: objective as FISTA and TwIST, so it shares their rule.
 TAU_PER_NOISE = {"fista-tv": 0.15, "twist": 0.15, "admm": 0.15}
 
 
@@ -91,9 +88,8 @@ def tv_weight(solver, tau, n_views, noise=None):
 
     The data term sums over the views' pixels, hence the factor :math:`n` (GAP-TV's
     projection step does not: its weight is per view, and fixed).  The weight follows the
-    noise because the best one does: with the fixed weight ``small`` did best at 0.35-0.5
-    times it and ``paper`` at 2 times, and their noise in these units differs by 3.6 times
-    (docs/figures.md).
+    noise because the best one does: the presets' best fixed weights differ as their noise in
+    these units does (docs/reconstruction.md, "The TV weight follows the noise").
     """
     if tau is not None:
         from recon.priors.tv import check_weight
