@@ -25,8 +25,9 @@ methods only, so that a prior overrides one only to make it faster or to keep it
 - :meth:`PriorBase.state` / :meth:`PriorBase.load_state` -- warm-start state carried from one
   problem to the next (a video's frames).
 
-Solvers look these up with :func:`gradient_prox`, :func:`combine_value`, :func:`refine`, so a
-bare :class:`Prior` that does not derive from :class:`PriorBase` works too.
+Solvers look these up with :func:`gradient_prox`, :func:`combine_value`, :func:`refine` and
+:func:`describe`, so a bare :class:`Prior` that does not derive from :class:`PriorBase` works
+too.
 """
 
 from __future__ import annotations
@@ -39,8 +40,7 @@ from recon import kernels
 from recon.errors import InputError
 
 __all__ = ["Prior", "PriorBase", "check_prior", "gradient_prox", "combine_value", "refine",
-           "describe",
-           "linear_combination"]
+           "describe", "linear_combination"]
 
 
 @runtime_checkable
