@@ -1,13 +1,15 @@
-r"""What every solver shares: the result record, the callback protocol, input checks, stopping.
+r"""What every solver shares: the result record, the callback protocol, input checks, stopping,
+and the prior a solver is given (:func:`resolve_prior`).
 
-Every solver minimises (or, for GAP-TV, approximately minimises)
+Every solver minimises (or, for GAP and a plug-and-play denoiser, approximately minimises)
 
 .. math::
 
-    \min_f \; \tfrac12 \|g - Hf\|_2^2 + \tau\, \mathrm{TV}(f)
+    \min_f \; \tfrac12 \|g - Hf\|_2^2 + \varphi(f)
 
 for a :class:`~recon.operators.LinearOperator` :math:`H` with ``ishape`` ``(L, H, W)`` (the
-band-major cube) and any ``oshape`` (``(K, Hv, Wm)`` for CASSI, any number of views).  The loop
+band-major cube) and any ``oshape`` (``(K, Hv, Wm)`` for CASSI, any number of views), and a
+prior :math:`\varphi` (:mod:`recon.priors`; by default :math:`\tau\,\mathrm{TV}`).  The loop
 runs in float32, or in float64 when the measurement is float64 (for precision checks).
 
 Stopping: after ``iters`` iterations, or earlier when ``tol`` is given and the relative change
@@ -26,10 +28,12 @@ import numpy as np
 
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
+from recon.priors import check_prior, make_prior
+from recon.priors.tv import check_weight
 from recon.prox.tv import tv_norm
 
 __all__ = ["SolverResult", "Callback", "IterationLoop", "check_problem", "objective",
-           "operator_norm_sq"]
+           "operator_norm_sq", "resolve_prior"]
 
 
 @dataclass
@@ -114,14 +118,58 @@ def check_problem(op: LinearOperator, g, x0, iters, tau, tol):
             raise InputError("x0 contains NaN or infinite values")
     if isinstance(iters, bool) or not isinstance(iters, (int, np.integer)) or iters < 1:
         raise InputError(f"iters must be an integer >= 1, got {iters!r}")
-    tau = float(tau)
-    if not math.isfinite(tau) or tau < 0:
-        raise InputError(f"tau must be finite and >= 0, got {tau}")
+    if tau is not None:
+        check_weight(tau, "tau")
     if tol is not None:
         tol = float(tol)
         if not math.isfinite(tol) or tol <= 0:
             raise InputError(f"tol must be > 0, got {tol}")
     return g, x0, dtype
+
+
+def resolve_prior(prior, solver: str, shape, dtype, *, tau=None, tv_iters=None,
+                  warm_dual=None, isotropic=None, threads=None):
+    r"""The prior a solver runs with, reset (a cold start).
+
+    Parameters
+    ----------
+    prior : Prior, str or None
+        A :class:`~recon.priors.Prior`; or a name of :data:`recon.priors.PRIORS`, built with
+        ``tau`` as its weight; or None: the TV prior :math:`\tau\,\mathrm{TV}` (``tau``
+        None: the solver's default, :data:`recon.priors.tv.DEFAULT_WEIGHT`), the solvers'
+        behaviour before priors were parts.
+    solver : str
+        The solver's name (for the default weight).
+    shape, dtype
+        The cube's shape and the loop's precision.
+    tau, tv_iters, warm_dual, isotropic, threads
+        The TV prior's options (None: its defaults).  With a prior object, only ``threads``
+        may be given (for the solver's own work): the prior carries its options.
+
+    Raises
+    ------
+    InputError
+        A prior object given together with TV options, or an unknown name.
+    """
+    tv = {k: v for k, v in (("tv_iters", tv_iters), ("warm_dual", warm_dual),
+                            ("isotropic", isotropic)) if v is not None}
+    if prior is None or isinstance(prior, str):
+        prior = make_prior("tv" if prior is None else prior, shape=shape, dtype=dtype,
+                           weight=tau, solver=solver, threads=threads, **tv)
+    else:
+        given = sorted((["tau"] if tau is not None else []) + list(tv))
+        if given:
+            raise InputError(f"{', '.join(given)} set the TV prior; with prior= given, set "
+                             f"them on the prior itself")
+        check_prior(prior)
+    prior.reset()
+    return prior
+
+
+def prior_value(prior, x) -> float | None:
+    """:math:`\varphi(x)` as a float, or None where the prior defines no value."""
+    v = prior.value(x)
+    return None if v is None else float(v)
 
 
 def data_misfit(op: LinearOperator, g: np.ndarray, x: np.ndarray) -> tuple[float, np.ndarray]:
@@ -131,9 +179,17 @@ def data_misfit(op: LinearOperator, g: np.ndarray, x: np.ndarray) -> tuple[float
     return 0.5 * float(np.vdot(r, r)), r
 
 
-def objective(op: LinearOperator, g: np.ndarray, x: np.ndarray, tau: float,
-              isotropic: bool = True) -> float:
-    r""":math:`\tfrac12\|g-Hx\|_2^2 + \tau\,\mathrm{TV}(x)` (one forward)."""
+def objective(op: LinearOperator, g: np.ndarray, x: np.ndarray, tau: float | None = None,
+              isotropic: bool = True, prior=None) -> float | None:
+    r""":math:`\tfrac12\|g-Hx\|_2^2 + \tau\,\mathrm{TV}(x)` (one forward), or with
+    ``prior`` :math:`\tfrac12\|g-Hx\|_2^2 + \varphi(x)` (None where the prior has no value)."""
+    if prior is not None:
+        if tau is not None:
+            raise InputError("objective: give tau (TV) or prior, not both")
+        value = prior_value(check_prior(prior), x)
+        return None if value is None else data_misfit(op, g, x)[0] + value
+    if tau is None:
+        raise InputError("objective: give tau (the TV weight) or a prior")
     return data_misfit(op, g, x)[0] + float(tau) * tv_norm(x, isotropic)
 
 
@@ -208,6 +264,24 @@ class IterationLoop:
         return time.perf_counter() - self.t0 - self.callback_seconds
 
 
+def gram_is_diagonal(op: LinearOperator, phi_inv: np.ndarray, dtype=np.float32,
+                     rng: np.random.Generator | None = None) -> bool:
+    r"""Whether :math:`HH^\top = \Phi` is diagonal (single-view CASSI), :math:`\Phi^{-1}` =
+    ``phi_inv`` (0 on rows that see nothing): one probe :math:`HH^\top u = \Phi u` for a
+    random :math:`u` drawn from ``rng`` (one forward/adjoint pair)."""
+    rng = np.random.default_rng(0) if rng is None else rng
+    u = rng.standard_normal(op.oshape).astype(dtype)
+    u *= (phi_inv > 0)
+    hhu = op.forward(op.adjoint(u)).astype(np.float64)
+    phi = np.zeros(phi_inv.shape, dtype=np.float64)
+    np.divide(1.0, phi_inv, out=phi, where=phi_inv > 0)
+    # Sums of squares without BLAS: OpenBLAS threads its float64 dot from a few ten thousand
+    # elements, and waking its threads on a busy machine costs more than the sum.
+    d = hhu - phi * u
+    err = math.sqrt(float(np.sum(d * d))) / max(math.sqrt(float(np.sum(hhu * hhu))), 1e-30)
+    return err < (1e-5 if np.dtype(dtype) == np.float32 else 1e-10)
+
+
 def preconditioned_norm_sq(op: LinearOperator, phi_inv: np.ndarray, n_iter: int = 15,
                            dtype=np.float32, seed: int = 0) -> float:
     r"""Estimate :math:`\nu = \|\Phi^{-1/2}H\|_2^2`, the top eigenvalue of :math:`H^\top\Phi^{-1}H`.
@@ -218,16 +292,7 @@ def preconditioned_norm_sq(op: LinearOperator, phi_inv: np.ndarray, n_iter: int 
     same voxel) a power iteration estimates :math:`\nu` (up to :math:`K`), times 1.02.
     """
     rng = np.random.default_rng(seed)
-    u = rng.standard_normal(op.oshape).astype(dtype)
-    u *= (phi_inv > 0)
-    hhu = op.forward(op.adjoint(u)).astype(np.float64)
-    phi = np.zeros(phi_inv.shape, dtype=np.float64)
-    np.divide(1.0, phi_inv, out=phi, where=phi_inv > 0)
-    # Sums of squares without BLAS: OpenBLAS threads its float64 dot from a few ten thousand
-    # elements and, on a busy machine, waking its threads took 8 ms per call (0.01 ms on one).
-    d = hhu - phi * u
-    err = math.sqrt(float(np.sum(d * d))) / max(math.sqrt(float(np.sum(hhu * hhu))), 1e-30)
-    if err < (1e-5 if np.dtype(dtype) == np.float32 else 1e-10):
+    if gram_is_diagonal(op, phi_inv, dtype, rng):
         return 1.0
     x = rng.standard_normal(op.ishape).astype(dtype)
     x /= np.linalg.norm(x)
