@@ -174,7 +174,8 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
         bar = report.progress_bar(len(counts) * (2 if oracle else 1), "reconstruct", progress)
         try:
             for n in counts:
-                x0 = cubes[max(cubes)] if warm_start and cubes else None
+                start = max(cubes) if warm_start and cubes else None
+                x0 = None if start is None else cubes[start]
                 cube, info = reconstruct_views(frame, meta, cal, n, solver=solver, iters=iters,
                                                tol=tol, tau=tau, x0=x0, truth=truths[n],
                                                design=design, model=model, progress=progress)
@@ -183,7 +184,7 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
                 write_cube(tmp / f"cube_{n}views.exr", cube, wl)
                 write_png(tmp / f"srgb_{n}views.png", srgb_image(cube, wl, peak)[0])
                 result["views"][str(n)] = evaluate.scores(info, n)
-                result["views"][str(n)]["warm_start_views"] = None if x0 is None else max(cubes)
+                result["views"][str(n)]["warm_start_views"] = start
                 if patches:
                     result["views"][str(n)]["delta_e2000_patches"] = evaluate.patch_delta_e2000(
                         cube, info["truth_grid"], list(patches.values()), wl)

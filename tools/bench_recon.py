@@ -311,16 +311,19 @@ def _best(fn, repeat):
     return min(walls)
 
 
-def _iteration_seconds(op, g, tau, lip, repeat, n=5):
-    """Seconds of one FISTA-TV iteration of the product's solver on ``op``, without its setup:
+def _iteration_seconds(op, g, tau, lip, truth, repeat, n=5):
+    """Seconds of one iteration of the product's solve (``recon.app.reconstruct``: FISTA-TV
+    and, with the truth, the PSNR after every iteration, as ``run`` does), without its setup:
     (t(1 + n) - t(1)) / n, each the best of ``repeat`` runs."""
-    kw = dict(tau=tau, tol=None, lipschitz=lip)
-    t1 = _best(lambda: solve("fista-tv", op, g, iters=1, **kw), repeat)
-    tn = _best(lambda: solve("fista-tv", op, g, iters=1 + n, **kw), repeat)
+    from recon.app import reconstruct
+
+    kw = dict(solver="fista-tv", tau=tau, tol=None, truth=truth, lipschitz=lip)
+    t1 = _best(lambda: reconstruct(g, op, iters=1, **kw), repeat)
+    tn = _best(lambda: reconstruct(g, op, iters=1 + n, **kw), repeat)
     return max(tn - t1, 0.0) / n
 
 
-def bench_calibrated(design_name, scenes, views, repeat, warm, quick):
+def bench_calibrated(design_name, scenes, views, repeat, warm, quick, converge=True):
     """The rows of one calibrated design (see the module docstring); returns the report."""
     from kaleidospec.calibrate import calibrate, is_cached
     from kaleidospec.instrument import release_transports, render_scene
@@ -370,11 +373,18 @@ def bench_calibrated(design_name, scenes, views, repeat, warm, quick):
             adj = _best(lambda: sop.adjoint(g), repeat)
             noise = measurement_noise(frame_measurements(frame, meta, cal, ids), meta, cal.noise)
             tau = tv_weight("fista-tv", None, n, None if noise is None else noise * sop.scale)
-            it_s = _iteration_seconds(sop, g, tau, lip, repeat, n=2 if quick else 5)
+            it_s = _iteration_seconds(sop, g, tau, lip, truths[n], repeat,
+                                      n=2 if quick else 5)
             del sop, g, op
             row = {"scene": scene, "views": n, "cube_shape": list(x.shape),
                    "forward_s": fwd, "adjoint_s": adj, "iteration_s": it_s,
                    "setup_s": setup}
+            if not converge:
+                print(f"  {design_name:5s} {scene:16s} {n} view(s): forward {fwd * 1e3:7.1f} ms"
+                      f"  adjoint {adj * 1e3:7.1f} ms  iteration {it_s:6.3f} s  setup "
+                      f"{setup:5.2f} s", flush=True)
+                rows.append(row)
+                continue
             with PeakRSS() as mem:
                 cube, info = reconstruct_views(frame, meta, cal, n, truth=truths[n],
                                                design=design, model=model)
@@ -420,6 +430,8 @@ def main(argv=None):
     p.add_argument("--scenes", default=",".join(CALIBRATED_SCENES),
                    help="scenes of the calibrated configurations (built-in or CAVE names)")
     p.add_argument("--views", default="1,5", help="view counts of the calibrated configurations")
+    p.add_argument("--no-solve", action="store_true",
+                   help="calibrated configurations: operator and iteration times only")
     p.add_argument("--warm", action="store_true",
                    help="also solve the largest view count from the one-view cube")
     p.add_argument("--no-reference", action="store_true",
@@ -444,7 +456,8 @@ def main(argv=None):
             views = [int(v) for v in args.views.split(",") if v]
             scenes = [v for v in args.scenes.split(",") if v]
             report.setdefault("calibrated", []).append(
-                bench_calibrated(key, scenes, views, args.repeat, args.warm, args.quick))
+                bench_calibrated(key, scenes, views, args.repeat, args.warm, args.quick,
+                                 converge=not args.no_solve))
             summary += _check_calibrated(report["calibrated"][-1])
             continue
         if key not in ("a", "b"):
