@@ -323,7 +323,80 @@ def _iteration_seconds(op, g, tau, lip, truth, repeat, n=5):
     return max(tn - t1, 0.0) / n
 
 
-def bench_calibrated(design_name, scenes, views, repeat, warm, quick, converge=True):
+@contextlib.contextmanager
+def reference_paths():
+    """Within this block the product's iteration takes the paths it took before the fast
+    ones it now has (for the A/B of ``--compare``): the PSF blur by FFT
+    (``recon.operators.blur.convolve_views`` on its NumPy path), the row scaling's gradient step
+    as the plain adjoint, a scaled copy and a sum (``LinearOperator.adjoint_add``), and the PSNR
+    history in float64 band by band.  Everything else (the calibrated kernels, the prox) is the
+    same in both."""
+    from recon import kernels
+    from recon.kernels import vector as kvec
+    from recon.operators import base as obase
+    from recon.operators import blur as oblur
+
+    conv, sq, add = oblur.convolve_views, kvec.squared_distance, obase.ScaledOperator.adjoint_add
+
+    def fft_blur(y, k):
+        with kernels.numpy_only():
+            return conv(y, k)
+
+    def per_band(a, b, threads=None):
+        return sum(float(np.sum((np.asarray(al, dtype=np.float64) - bl) ** 2))
+                   for al, bl in zip(a, b))
+
+    oblur.convolve_views = fft_blur
+    kvec.squared_distance = per_band
+    obase.ScaledOperator.adjoint_add = obase.LinearOperator.adjoint_add
+    try:
+        yield
+    finally:
+        oblur.convolve_views, kvec.squared_distance = conv, sq
+        obase.ScaledOperator.adjoint_add = add
+
+
+def compare_paths(op, g, truth, tau, lip, repeat, iters=5):
+    """Reference paths (:func:`reference_paths`) against the current ones, alternated in this
+    process: forward, gradient step, and ``iters`` iterations of the product's solve (FISTA-TV
+    with the PSNR history, ``recon.app.reconstruct``; its start, one adjoint, included); best
+    of ``repeat`` each.  Returns {"reference": {...}, "current": {...}, "max_rel_diff": {...}}."""
+    from recon.app import reconstruct
+
+    x = np.ascontiguousarray(np.moveaxis(truth, 2, 0), dtype=np.float32)
+    times = {"reference": {}, "current": {}}
+    outs = {}
+    for _ in range(max(1, repeat)):
+        for which in ("reference", "current"):
+            ctx = reference_paths() if which == "reference" else contextlib.nullcontext()
+            with ctx:
+                res = {}
+                t0 = time.perf_counter()
+                res["forward"] = op.forward(x)
+                t1 = time.perf_counter()
+                res["gradient step"] = op.adjoint_add(g, x, -0.5)
+                t2 = time.perf_counter()
+                cube, info = reconstruct(g, op, solver="fista-tv", iters=iters, tol=None,
+                                         tau=tau, truth=truth, lipschitz=lip)
+                res["solve"] = cube
+                t3 = time.perf_counter()
+            for k, t in (("forward_s", t1 - t0), ("gradient_step_s", t2 - t1),
+                         (f"solve_{iters}_it_s", info["wall_seconds"])):
+                times[which][k] = min(times[which].get(k, np.inf), t)
+            times[which]["psnr_history"] = info["psnr_history"]
+            outs[which] = res
+    diff = {k: rel_diff(outs["current"][k], outs["reference"][k]) for k in outs["current"]}
+    return {**times, "max_rel_diff": diff}
+
+
+def rel_diff(a, b) -> float:
+    """Largest absolute difference over the largest absolute value of ``b``."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    return float(np.abs(a - b).max() / max(np.abs(b).max(), 1e-30))
+
+
+def bench_calibrated(design_name, scenes, views, repeat, warm, quick, converge=True,
+                     compare=False):
     """The rows of one calibrated design (see the module docstring); returns the report."""
     from kaleidospec.calibrate import calibrate, is_cached
     from kaleidospec.instrument import release_transports, render_scene
@@ -375,10 +448,20 @@ def bench_calibrated(design_name, scenes, views, repeat, warm, quick, converge=T
             tau = tv_weight("fista-tv", None, n, None if noise is None else noise * sop.scale)
             it_s = _iteration_seconds(sop, g, tau, lip, truths[n], repeat,
                                       n=2 if quick else 5)
-            del sop, g, op
             row = {"scene": scene, "views": n, "cube_shape": list(x.shape),
                    "forward_s": fwd, "adjoint_s": adj, "iteration_s": it_s,
                    "setup_s": setup}
+            if compare:
+                row["compare"] = c = compare_paths(sop, g, truths[n], tau, lip, repeat)
+                ref, cur = c["reference"], c["current"]
+                for k in ("forward_s", "gradient_step_s", "solve_5_it_s"):
+                    print(f"  {design_name:5s} {scene:16s} {n} view(s) {k:16s} reference "
+                          f"{ref[k]:7.3f} s  current {cur[k]:7.3f} s  ({ref[k] / cur[k]:4.2f}x)",
+                          flush=True)
+                print(f"  {design_name:5s} {scene:16s} {n} view(s) largest relative "
+                      f"difference current/reference: " + ", ".join(
+                          f"{k} {v:.1e}" for k, v in c["max_rel_diff"].items()), flush=True)
+            del sop, g, op
             if not converge:
                 print(f"  {design_name:5s} {scene:16s} {n} view(s): forward {fwd * 1e3:7.1f} ms"
                       f"  adjoint {adj * 1e3:7.1f} ms  iteration {it_s:6.3f} s  setup "
@@ -409,7 +492,7 @@ def bench_calibrated(design_name, scenes, views, repeat, warm, quick, converge=T
                 rows.append(wrow)
         for r in rows:
             target = CALIBRATED_TARGETS.get((design_name, r["views"]))
-            if target is not None and "warm_from" not in r:
+            if target is not None and "warm_from" not in r and "solve_s" in r:
                 r["target_s"] = target
         out["scenes"].append({"scene": scene, "rows": rows})
         del frame, truths, cubes
@@ -430,6 +513,9 @@ def main(argv=None):
     p.add_argument("--scenes", default=",".join(CALIBRATED_SCENES),
                    help="scenes of the calibrated configurations (built-in or CAVE names)")
     p.add_argument("--views", default="1,5", help="view counts of the calibrated configurations")
+    p.add_argument("--compare", action="store_true",
+                   help="calibrated configurations: also time the reference paths against the "
+                        "current ones, alternated in this process")
     p.add_argument("--no-solve", action="store_true",
                    help="calibrated configurations: operator and iteration times only")
     p.add_argument("--warm", action="store_true",
@@ -457,7 +543,7 @@ def main(argv=None):
             scenes = [v for v in args.scenes.split(",") if v]
             report.setdefault("calibrated", []).append(
                 bench_calibrated(key, scenes, views, args.repeat, args.warm, args.quick,
-                                 converge=not args.no_solve))
+                                 converge=not args.no_solve, compare=args.compare))
             summary += _check_calibrated(report["calibrated"][-1])
             continue
         if key not in ("a", "b"):
