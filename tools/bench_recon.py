@@ -389,6 +389,41 @@ def compare_paths(op, g, truth, tau, lip, repeat, iters=5):
     return {**times, "max_rel_diff": diff}
 
 
+def compare_blur(cal, views, alternations=10):
+    """The PSF blur alone on the calibration's kernel and each view count's measurement shape:
+    the FFT (the reference path) against the direct correlation, alternated; medians and
+    bests in seconds, and the largest relative difference."""
+    from recon import kernels
+    from recon.operators.blur import convolve_views
+
+    if cal.psf is None:
+        return {}
+    k = np.asarray(cal.psf, np.float32)
+    h, w = (int(v) for v in cal.view_boxes[0, 2:])
+    out = {}
+    for n in views:
+        y = np.random.default_rng(0).random((n, h, w), dtype=np.float32)
+        tf, td = [], []
+        for _ in range(alternations):
+            t0 = time.perf_counter()
+            with kernels.numpy_only():
+                a = convolve_views(y, k)
+            tf.append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            b = convolve_views(y, k)
+            td.append(time.perf_counter() - t0)
+        out[n] = {"fft_median_s": float(np.median(tf)), "fft_best_s": min(tf),
+                  "direct_median_s": float(np.median(td)), "direct_best_s": min(td),
+                  "max_rel_diff": rel_diff(b, a)}
+        r = out[n]
+        print(f"  PSF blur {k.shape[0]}x{k.shape[1]}, {n} view(s) {y.shape}: FFT median "
+              f"{r['fft_median_s'] * 1e3:6.1f} ms (best {r['fft_best_s'] * 1e3:6.1f}), direct "
+              f"{r['direct_median_s'] * 1e3:6.1f} ms (best {r['direct_best_s'] * 1e3:6.1f}), "
+              f"{r['fft_median_s'] / r['direct_median_s']:4.2f}x; largest relative difference "
+              f"{r['max_rel_diff']:.1e}", flush=True)
+    return out
+
+
 def rel_diff(a, b) -> float:
     """Largest absolute difference over the largest absolute value of ``b``."""
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
@@ -420,6 +455,8 @@ def bench_calibrated(design_name, scenes, views, repeat, warm, quick, converge=T
     out = {"design": design_name, "design_hash": design.hash, "model": model,
            "calibration": {"cached": cached, "seconds": cal_s, "peak_rss_mb": mem.peak_mb},
            "scenes": []}
+    if compare:
+        out["blur"] = compare_blur(cal, views)
     for scene in scenes:
         src = scene_source(scene)
         if src is None:
