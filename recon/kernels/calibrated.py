@@ -31,9 +31,8 @@ An identity view reads the cube's row in place.  Adjoint: :func:`shift_adjoint` 
 that says how the view's part combines with the output (see :func:`warp_adjoint`), so that a
 sum over views, and the solvers' :math:`b + sH^\top y`, need no extra pass.
 
-Reading a row of :math:`W` once for all bands, not once a band, is what makes the forward
-pass fast (the rows of :math:`W` are the larger part of what it reads); figures in
-``docs/speed_product.md``.
+The forward pass reads each row of :math:`W` once for all bands, not once a band (figures in
+``docs/speed_product.md``).
 """
 
 from __future__ import annotations
