@@ -45,8 +45,7 @@ def parse_views(spec) -> tuple[int, ...]:
 def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS["solver"],
         iters: int = DEFAULTS["iters"], tol=DEFAULTS["tol"], tau=None, seed: int = 0,
         progress: bool = True, cache_dir=None, oracle: bool = True, figures: bool = True,
-        raw=None, widen: bool = True, log=None, model: str | None = None,
-        warm_start: bool = True) -> dict:
+        raw=None, widen: bool = True, log=None, model: str | None = None) -> dict:
     """Render ``scene``, calibrate (cached), reconstruct for every view count, write a report.
 
     Everything is written into a fresh temporary folder beside ``out_dir`` that replaces
@@ -82,10 +81,6 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
     model : str, optional
         The calibrated forward model (:data:`kaleidospec.models.RUN_MODELS`; default
         :data:`kaleidospec.models.DEFAULT_MODEL`), calibrated if the cache lacks it.
-    warm_start : bool
-        Start each view count's solve from the cube of the largest count before it (the same
-        grid and units; the objective is the same, only the start differs) instead of from
-        :math:`H^\top g / L`.
 
     Returns
     -------
@@ -174,17 +169,14 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
         bar = report.progress_bar(len(counts) * (2 if oracle else 1), "reconstruct", progress)
         try:
             for n in counts:
-                start = max(cubes) if warm_start and cubes else None
-                x0 = None if start is None else cubes[start]
                 cube, info = reconstruct_views(frame, meta, cal, n, solver=solver, iters=iters,
-                                               tol=tol, tau=tau, x0=x0, truth=truths[n],
-                                               design=design, model=model, progress=progress)
+                                               tol=tol, tau=tau, truth=truths[n], design=design,
+                                               model=model, progress=progress)
                 bar.update()
                 cubes[n] = cube
                 write_cube(tmp / f"cube_{n}views.exr", cube, wl)
                 write_png(tmp / f"srgb_{n}views.png", srgb_image(cube, wl, peak)[0])
                 result["views"][str(n)] = evaluate.scores(info, n)
-                result["views"][str(n)]["warm_start_views"] = start
                 if patches:
                     result["views"][str(n)]["delta_e2000_patches"] = evaluate.patch_delta_e2000(
                         cube, info["truth_grid"], list(patches.values()), wl)

@@ -50,12 +50,6 @@ def test_run_writes_everything(done):
     assert not [p for p in done.parent.iterdir() if p.name.startswith(".")]  # no temporaries
 
 
-def test_each_view_count_starts_from_the_one_before(done):
-    m = json.loads((done / "metrics.json").read_text())
-    assert m["views"]["1"]["warm_start_views"] is None
-    assert m["views"]["2"]["warm_start_views"] == 1
-
-
 def test_bad_cube_leaves_the_folder_alone(done, tmp_path, capsys):
     bad = tmp_path / "bad.npz"
     cube = np.ones((8, 8, 3), np.float32)
