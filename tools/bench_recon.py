@@ -34,18 +34,23 @@ draw (``kaleidospec.instrument.render_scene``, as ``kaleidospec run`` renders it
 captures never see it) and, per view count (``--views``, default 1,5), the operator
 ``kaleidospec.reconstruct`` solves through (unit row norm, the PSF blur, leads, displacement
 fields, deconvolved masks): forward, adjoint and one FISTA-TV iteration (best of ``--repeat``;
-an iteration is (t(1 + N) - t(1)) / N, without the setup), then the converged solve of
+an iteration of the product's solve, PSNR history included, is (t(1 + N) - t(1)) / N,
+without the setup), then the converged solve of
 ``kaleidospec.reconstruct.reconstruct_views`` with the defaults (FISTA-TV, relative change
 < 1e-3, at most 400 iterations), the truth on the model's grid as ``run`` scores it: time,
 iterations, PSNR and the process's peak resident memory during the solve (sampled every
-20 ms).  With ``--warm`` the five-view solve also runs from the one-view cube (``run``'s warm
-start).  Scenes (``--scenes``): ``natural`` and the CAVE development scene
+20 ms).  With ``--warm`` every view count above one also runs from the one-view cube (a warm
+start: the same objective, another start).  ``--compare`` times the reference paths (the
+FFT blur, the unfused gradient step of the row scaling, the float64 PSNR history) against the
+current ones, alternated in the process, with the largest relative difference of their
+outputs.  Scenes (``--scenes``): ``natural`` and the CAVE development scene
 ``egyptian_statue`` (``$KALEIDOSPEC_DATA/cave/egyptian_statue``, skipped when absent).
 
 Usage: python3 tools/bench_recon.py [--quick] [--out DIR] [--iters 50] [--solvers a,b]
                                     [--configs a,b] [--repeat 3] [--no-reference]
        python3 tools/bench_recon.py --configs small,paper [--scenes natural,egyptian_statue]
-                                    [--views 1,5] [--warm] [--repeat 3]
+                                    [--views 1,5] [--warm] [--compare] [--no-solve]
+                                    [--repeat 3]
 """
 
 from __future__ import annotations
@@ -556,7 +561,7 @@ def main(argv=None):
     p.add_argument("--no-solve", action="store_true",
                    help="calibrated configurations: operator and iteration times only")
     p.add_argument("--warm", action="store_true",
-                   help="also solve the largest view count from the one-view cube")
+                   help="also solve every view count above one from the one-view cube")
     p.add_argument("--no-reference", action="store_true",
                    help="skip the plain NumPy GAP-TV on (a) and the authors'-settings TwIST "
                         "on (b)")
