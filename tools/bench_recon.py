@@ -384,7 +384,6 @@ def compare_paths(op, g, truth, tau, lip, repeat, iters=5):
                 cube, info = reconstruct(g, op, solver="fista-tv", iters=iters, tol=None,
                                          tau=tau, truth=truth, lipschitz=lip)
                 res["solve"] = cube
-                t3 = time.perf_counter()
             for k, t in (("forward_s", t1 - t0), ("gradient_step_s", t2 - t1),
                          (f"solve_{iters}_it_s", info["wall_seconds"])):
                 times[which][k] = min(times[which].get(k, np.inf), t)
