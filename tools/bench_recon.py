@@ -27,8 +27,30 @@ with the authors' settings (lambda1 = 1e-4, 10 Chambolle iterations per prox) fo
 (``--no-reference`` skips it, and the plain GAP-TV on (a)).  ``KALEIDOSPEC_KERNELS=numpy``
 runs the NumPy paths of recon instead of the kernels.
 
+The product's own work (``--configs small,paper``): the calibrated model of the ``small`` or
+``paper`` design built from its real calibration (cached by design hash; calibrated here, and
+timed, when the cache lacks it), a raw frame of each scene rendered with its own Monte Carlo
+draw (``kaleidospec.instrument.render_scene``, as ``kaleidospec run`` renders it; the
+captures never see it) and, per view count (``--views``, default 1,5), the operator
+``kaleidospec.reconstruct`` solves through (unit row norm, the PSF blur, leads, displacement
+fields, deconvolved masks): forward, adjoint and one FISTA-TV iteration (best of ``--repeat``;
+an iteration of the product's solve, PSNR history included, is (t(1 + N) - t(1)) / N,
+without the setup), then the converged solve of
+``kaleidospec.reconstruct.reconstruct_views`` with the defaults (FISTA-TV, relative change
+< 1e-3, at most 400 iterations), the truth on the model's grid as ``run`` scores it: time,
+iterations, PSNR and the process's peak resident memory during the solve (sampled every
+20 ms).  With ``--warm`` every view count above one also runs from the one-view cube (a warm
+start: the same objective, another start).  ``--compare`` times the reference paths (the
+FFT blur, the unfused gradient step of the row scaling, the float64 PSNR history) against the
+current ones, alternated in the process, with the largest relative difference of their
+outputs.  Scenes (``--scenes``): ``natural`` and the CAVE development scene
+``egyptian_statue`` (``$KALEIDOSPEC_DATA/cave/egyptian_statue``, skipped when absent).
+
 Usage: python3 tools/bench_recon.py [--quick] [--out DIR] [--iters 50] [--solvers a,b]
                                     [--configs a,b] [--repeat 3] [--no-reference]
+       python3 tools/bench_recon.py --configs small,paper [--scenes natural,egyptian_statue]
+                                    [--views 1,5] [--warm] [--compare] [--no-solve]
+                                    [--repeat 3]
 """
 
 from __future__ import annotations
@@ -39,6 +61,7 @@ import json
 import os
 import resource
 import sys
+import threading
 import time
 import tracemalloc
 from pathlib import Path
@@ -219,6 +242,300 @@ def run_reference(op, g, truth, iters, repeat):
             "cpu_seconds": cpus[best], "all_seconds": walls, "psnr": ps, "curve": []}
 
 
+# ------------------------------------------------------------------ the product's own work
+#: The calibrated configurations: design presets of ``sim.design``.
+CALIBRATED = ("small", "paper")
+#: Scenes of the calibrated rows: a measured hyperspectral scene and the built-in one.
+CALIBRATED_SCENES = ("egyptian_statue", "natural")
+#: The issue's targets for the calibrated rows: (design, views) -> seconds of the converged
+#: solve (TV prior, the default rule).
+CALIBRATED_TARGETS = {("paper", 5): 12.0, ("paper", 1): 20.0, ("small", 5): 0.5}
+
+
+class PeakRSS:
+    """The process's peak resident memory while the ``with`` block runs, sampled from
+    ``/proc/self/statm`` every ``period`` seconds (MB; None where there is no ``/proc``)."""
+
+    def __init__(self, period: float = 0.02):
+        self.period = period
+        self.peak_mb = self.start_mb = None
+
+    @staticmethod
+    def _rss_mb():
+        try:
+            with open("/proc/self/statm") as f:
+                return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+        except (OSError, ValueError, IndexError):
+            return None
+
+    def _sample(self):
+        while not self._stop.wait(self.period):
+            r = self._rss_mb()
+            if r is not None:
+                self.peak_mb = max(self.peak_mb or 0.0, r)
+
+    def __enter__(self):
+        self.start_mb = self.peak_mb = self._rss_mb()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._sample, daemon=True)
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._thread.join()
+        r = self._rss_mb()
+        if r is not None:
+            self.peak_mb = max(self.peak_mb or 0.0, r)
+        return False
+
+
+def scene_source(name: str):
+    """A built-in scene's name, or the CAVE folder ``$KALEIDOSPEC_DATA/cave/<name>``; None when
+    a CAVE scene is asked for and absent."""
+    from scenes.registry import list_scenes
+
+    if name in list_scenes():
+        return name
+    root = os.environ.get("KALEIDOSPEC_DATA")
+    folder = Path(root) / "cave" / name if root else None
+    return str(folder) if folder is not None and folder.is_dir() else None
+
+
+def _best(fn, repeat):
+    walls = []
+    for _ in range(max(1, repeat)):
+        t0 = time.perf_counter()
+        fn()
+        walls.append(time.perf_counter() - t0)
+    return min(walls)
+
+
+def _iteration_seconds(op, g, tau, lip, truth, repeat, n=5):
+    """Seconds of one iteration of the product's solve (``recon.app.reconstruct``: FISTA-TV
+    and, with the truth, the PSNR after every iteration, as ``run`` does), without its setup:
+    (t(1 + n) - t(1)) / n, each the best of ``repeat`` runs."""
+    from recon.app import reconstruct
+
+    kw = dict(solver="fista-tv", tau=tau, tol=None, truth=truth, lipschitz=lip)
+    t1 = _best(lambda: reconstruct(g, op, iters=1, **kw), repeat)
+    tn = _best(lambda: reconstruct(g, op, iters=1 + n, **kw), repeat)
+    return max(tn - t1, 0.0) / n
+
+
+@contextlib.contextmanager
+def reference_paths():
+    """Within this block the product's iteration takes the paths it took before the fast
+    ones it now has (for the A/B of ``--compare``): the PSF blur by FFT
+    (``recon.operators.blur.convolve_views`` on its NumPy path), the row scaling's gradient step
+    as the plain adjoint, a scaled copy and a sum (``LinearOperator.adjoint_add``), and the PSNR
+    history in float64 band by band.  Everything else (the calibrated kernels, the prox) is the
+    same in both."""
+    from recon import kernels
+    from recon.kernels import vector as kvec
+    from recon.operators import base as obase
+    from recon.operators import blur as oblur
+
+    conv, sq, add = oblur.convolve_views, kvec.squared_distance, obase.ScaledOperator.adjoint_add
+
+    def fft_blur(y, k):
+        with kernels.numpy_only():
+            return conv(y, k)
+
+    def per_band(a, b, threads=None):
+        return sum(float(np.sum((np.asarray(al, dtype=np.float64) - bl) ** 2))
+                   for al, bl in zip(a, b))
+
+    oblur.convolve_views = fft_blur
+    kvec.squared_distance = per_band
+    obase.ScaledOperator.adjoint_add = obase.LinearOperator.adjoint_add
+    try:
+        yield
+    finally:
+        oblur.convolve_views, kvec.squared_distance = conv, sq
+        obase.ScaledOperator.adjoint_add = add
+
+
+def compare_paths(op, g, truth, tau, lip, repeat, iters=5):
+    """Reference paths (:func:`reference_paths`) against the current ones, alternated in this
+    process: forward, gradient step, and ``iters`` iterations of the product's solve (FISTA-TV
+    with the PSNR history, ``recon.app.reconstruct``; its start, one adjoint, included); best
+    of ``repeat`` each.  Returns {"reference": {...}, "current": {...}, "max_rel_diff": {...}}."""
+    from recon.app import reconstruct
+
+    x = np.ascontiguousarray(np.moveaxis(truth, 2, 0), dtype=np.float32)
+    times = {"reference": {}, "current": {}}
+    outs = {}
+    for _ in range(max(1, repeat)):
+        for which in ("reference", "current"):
+            ctx = reference_paths() if which == "reference" else contextlib.nullcontext()
+            with ctx:
+                res = {}
+                t0 = time.perf_counter()
+                res["forward"] = op.forward(x)
+                t1 = time.perf_counter()
+                res["gradient step"] = op.adjoint_add(g, x, -0.5)
+                t2 = time.perf_counter()
+                cube, info = reconstruct(g, op, solver="fista-tv", iters=iters, tol=None,
+                                         tau=tau, truth=truth, lipschitz=lip)
+                res["solve"] = cube
+            for k, t in (("forward_s", t1 - t0), ("gradient_step_s", t2 - t1),
+                         (f"solve_{iters}_it_s", info["wall_seconds"])):
+                times[which][k] = min(times[which].get(k, np.inf), t)
+            times[which]["psnr_history"] = info["psnr_history"]
+            outs[which] = res
+    diff = {k: rel_diff(outs["current"][k], outs["reference"][k]) for k in outs["current"]}
+    return {**times, "max_rel_diff": diff}
+
+
+def compare_blur(cal, views, alternations=10):
+    """The PSF blur alone on the calibration's kernel and each view count's measurement shape:
+    the FFT (the reference path) against the direct correlation, alternated; medians and
+    bests in seconds, and the largest relative difference."""
+    from recon import kernels
+    from recon.operators.blur import convolve_views
+
+    if cal.psf is None:
+        return {}
+    k = np.asarray(cal.psf, np.float32)
+    h, w = (int(v) for v in cal.view_boxes[0, 2:])
+    out = {}
+    for n in views:
+        y = np.random.default_rng(0).random((n, h, w), dtype=np.float32)
+        tf, td = [], []
+        for _ in range(alternations):
+            t0 = time.perf_counter()
+            with kernels.numpy_only():
+                a = convolve_views(y, k)
+            tf.append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            b = convolve_views(y, k)
+            td.append(time.perf_counter() - t0)
+        out[n] = {"fft_median_s": float(np.median(tf)), "fft_best_s": min(tf),
+                  "direct_median_s": float(np.median(td)), "direct_best_s": min(td),
+                  "max_rel_diff": rel_diff(b, a)}
+        r = out[n]
+        print(f"  PSF blur {k.shape[0]}x{k.shape[1]}, {n} view(s) {y.shape}: FFT median "
+              f"{r['fft_median_s'] * 1e3:6.1f} ms (best {r['fft_best_s'] * 1e3:6.1f}), direct "
+              f"{r['direct_median_s'] * 1e3:6.1f} ms (best {r['direct_best_s'] * 1e3:6.1f}), "
+              f"{r['fft_median_s'] / r['direct_median_s']:4.2f}x; largest relative difference "
+              f"{r['max_rel_diff']:.1e}", flush=True)
+    return out
+
+
+def rel_diff(a, b) -> float:
+    """Largest absolute difference over the largest absolute value of ``b``."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    return float(np.abs(a - b).max() / max(np.abs(b).max(), 1e-30))
+
+
+def bench_calibrated(design_name, scenes, views, repeat, warm, quick, converge=True,
+                     compare=False):
+    """The rows of one calibrated design (see the module docstring); returns the report."""
+    from kaleidospec.calibrate import calibrate, is_cached
+    from kaleidospec.instrument import release_transports, render_scene
+    from kaleidospec.models import model_of, truth_on_grid
+    from kaleidospec.reconstruct import (DEFAULTS, calibrated_operator, first_views,
+                                         frame_measurements, measurement_noise, normalised,
+                                         reconstruct_views, tv_weight)
+    from recon.solvers import operator_norm_sq
+    from sim.design import get_design
+
+    design = get_design(design_name)
+    cached = is_cached(design)
+    t0 = time.perf_counter()
+    with PeakRSS() as mem:
+        cal = calibrate(design, progress=False)
+    cal_s = time.perf_counter() - t0
+    model = model_of(cal, None)
+    print(f"[{design_name}] calibration {'loaded from the cache' if cached else 'made'} in "
+          f"{cal_s:.1f} s (peak RSS {mem.peak_mb:.0f} MB); model {model}, cube "
+          f"{cal.cube_shape}", flush=True)
+    out = {"design": design_name, "design_hash": design.hash, "model": model,
+           "calibration": {"cached": cached, "seconds": cal_s, "peak_rss_mb": mem.peak_mb},
+           "scenes": []}
+    if compare:
+        out["blur"] = compare_blur(cal, views)
+    for scene in scenes:
+        src = scene_source(scene)
+        if src is None:
+            print(f"[{design_name}] scene {scene}: not found (KALEIDOSPEC_DATA/cave/{scene}); "
+                  f"skipped", flush=True)
+            continue
+        t0 = time.perf_counter()
+        frame, meta, native, _ = render_scene(src, design, seed=0, native=True)
+        release_transports("scene")
+        truths = {n: truth_on_grid(native, design, cal, model, first_views(n)) for n in views}
+        del native
+        print(f"[{design_name}] {scene}: frame rendered in {time.perf_counter() - t0:.1f} s",
+              flush=True)
+        rows, cubes = [], {}
+        for n in views:
+            ids = first_views(n)
+            op = calibrated_operator(cal, ids, model)
+            t0 = time.perf_counter()
+            sop, g = normalised(op, frame_measurements(frame, meta, cal, ids))
+            lip = operator_norm_sq(sop)
+            setup = time.perf_counter() - t0
+            x = np.ascontiguousarray(np.moveaxis(truths[n], 2, 0), dtype=np.float32)
+            fwd = _best(lambda: sop.forward(x), repeat)
+            adj = _best(lambda: sop.adjoint(g), repeat)
+            noise = measurement_noise(frame_measurements(frame, meta, cal, ids), meta, cal.noise)
+            tau = tv_weight("fista-tv", None, n, None if noise is None else noise * sop.scale)
+            it_s = _iteration_seconds(sop, g, tau, lip, truths[n], repeat,
+                                      n=2 if quick else 5)
+            row = {"scene": scene, "views": n, "cube_shape": list(x.shape),
+                   "forward_s": fwd, "adjoint_s": adj, "iteration_s": it_s,
+                   "setup_s": setup}
+            if compare:
+                row["compare"] = c = compare_paths(sop, g, truths[n], tau, lip, repeat)
+                ref, cur = c["reference"], c["current"]
+                for k in ("forward_s", "gradient_step_s", "solve_5_it_s"):
+                    print(f"  {design_name:5s} {scene:16s} {n} view(s) {k:16s} reference "
+                          f"{ref[k]:7.3f} s  current {cur[k]:7.3f} s  ({ref[k] / cur[k]:4.2f}x)",
+                          flush=True)
+                print(f"  {design_name:5s} {scene:16s} {n} view(s) largest relative "
+                      f"difference current/reference: " + ", ".join(
+                          f"{k} {v:.1e}" for k, v in c["max_rel_diff"].items()), flush=True)
+            del sop, g, op
+            if not converge:
+                print(f"  {design_name:5s} {scene:16s} {n} view(s): forward {fwd * 1e3:7.1f} ms"
+                      f"  adjoint {adj * 1e3:7.1f} ms  iteration {it_s:6.3f} s  setup "
+                      f"{setup:5.2f} s", flush=True)
+                rows.append(row)
+                continue
+            with PeakRSS() as mem:
+                cube, info = reconstruct_views(frame, meta, cal, n, truth=truths[n],
+                                               design=design, model=model)
+            row.update(solve_s=info["seconds"], iters=info["iters"],
+                       psnr=info["metrics"]["psnr"], peak_rss_mb=mem.peak_mb,
+                       rss_start_mb=mem.start_mb)
+            cubes[n] = cube
+            print(f"  {design_name:5s} {scene:16s} {n} view(s): forward {fwd * 1e3:7.1f} ms  "
+                  f"adjoint {adj * 1e3:7.1f} ms  iteration {it_s:6.3f} s  | converged "
+                  f"{info['iters']:3d} it {info['seconds']:7.2f} s  PSNR {row['psnr']:6.2f} dB"
+                  f"  peak RSS {mem.peak_mb:6.0f} MB", flush=True)
+            rows.append(row)
+            if warm and n > 1 and 1 in cubes:
+                with PeakRSS() as mem:
+                    cube, info = reconstruct_views(frame, meta, cal, n, truth=truths[n],
+                                                   design=design, model=model, x0=cubes[1])
+                wrow = dict(row, warm_from=1, solve_s=info["seconds"], iters=info["iters"],
+                            psnr=info["metrics"]["psnr"], peak_rss_mb=mem.peak_mb)
+                print(f"  {design_name:5s} {scene:16s} {n} view(s) from the 1-view cube: "
+                      f"{info['iters']:3d} it {info['seconds']:7.2f} s  PSNR "
+                      f"{wrow['psnr']:6.2f} dB", flush=True)
+                rows.append(wrow)
+        for r in rows:
+            target = CALIBRATED_TARGETS.get((design_name, r["views"]))
+            if target is not None and "warm_from" not in r and "solve_s" in r:
+                r["target_s"] = target
+        out["scenes"].append({"scene": scene, "rows": rows})
+        del frame, truths, cubes
+    out["defaults"] = dict(DEFAULTS)
+    return out
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--quick", action="store_true", help="small sizes (a smoke run)")
@@ -229,6 +546,16 @@ def main(argv=None):
     p.add_argument("--repeat", type=int, default=3, help="timed runs per solver (best kept)")
     p.add_argument("--ref-repeat", type=int, default=2,
                    help="timed runs of the plain NumPy GAP-TV (best kept)")
+    p.add_argument("--scenes", default=",".join(CALIBRATED_SCENES),
+                   help="scenes of the calibrated configurations (built-in or CAVE names)")
+    p.add_argument("--views", default="1,5", help="view counts of the calibrated configurations")
+    p.add_argument("--compare", action="store_true",
+                   help="calibrated configurations: also time the reference paths against the "
+                        "current ones, alternated in this process")
+    p.add_argument("--no-solve", action="store_true",
+                   help="calibrated configurations: operator and iteration times only")
+    p.add_argument("--warm", action="store_true",
+                   help="also solve every view count above one from the one-view cube")
     p.add_argument("--no-reference", action="store_true",
                    help="skip the plain NumPy GAP-TV on (a) and the authors'-settings TwIST "
                         "on (b)")
@@ -247,6 +574,16 @@ def main(argv=None):
     first = None
     summary = []
     for key in args.configs.split(","):
+        if key in CALIBRATED:
+            views = [int(v) for v in args.views.split(",") if v]
+            scenes = [v for v in args.scenes.split(",") if v]
+            report.setdefault("calibrated", []).append(
+                bench_calibrated(key, scenes, views, args.repeat, args.warm, args.quick,
+                                 converge=not args.no_solve, compare=args.compare))
+            summary += _check_calibrated(report["calibrated"][-1])
+            continue
+        if key not in ("a", "b"):
+            p.error(f"unknown configuration {key!r}: a, b, {', '.join(CALIBRATED)}")
         title, op, truth = (config_a if key == "a" else config_b)(args.quick)
         # The measurement through the NumPy path, so that the first solve below is the first
         # use of the kernels in this process.
@@ -313,6 +650,19 @@ def _check_targets(key, runs, args):
     return lines
 
 
+def _check_calibrated(res):
+    """One line per calibrated row that has a target (a cold, converged solve)."""
+    lines = []
+    for sc in res["scenes"]:
+        for r in sc["rows"]:
+            if "target_s" in r:
+                ok = "met" if r["solve_s"] <= r["target_s"] else "MISSED"
+                lines.append(f"target {res['design']} {sc['scene']} {r['views']} view(s) <= "
+                             f"{r['target_s']:g} s: {r['solve_s']:.2f} s, {r['iters']} it, "
+                             f"{r['psnr']:.2f} dB {ok}")
+    return lines
+
+
 def _plot(report, path):
     import matplotlib
 
@@ -320,6 +670,8 @@ def _plot(report, path):
     import matplotlib.pyplot as plt
 
     cfgs = report["configs"]
+    if not cfgs:
+        return
     fig, axes = plt.subplots(1, len(cfgs), figsize=(6 * len(cfgs), 4.5), squeeze=False)
     for ax, cfg in zip(axes[0], cfgs):
         for run in cfg["runs"]:

@@ -97,7 +97,7 @@ def usable(*arrays) -> bool:
 
     Kernels are compiled for float32 only, the solvers' working precision: float64 runs
     (precision checks, dot tests) take the NumPy path, which halves the compilation a fresh
-    machine pays (about 10 s instead of 20 s on two cores).
+    machine pays.
     """
     return enabled() and all(np.asarray(a).dtype == np.float32 for a in arrays)
 

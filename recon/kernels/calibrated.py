@@ -31,12 +31,8 @@ An identity view reads the cube's row in place.  Adjoint: :func:`shift_adjoint` 
 that says how the view's part combines with the output (see :func:`warp_adjoint`), so that a
 sum over views, and the solvers' :math:`b + sH^\top y`, need no extra pass.
 
-Measured (``tools/bench_operators.py --only-calibrated``: the paper's five calibrated views,
-cube 900x848x26, four homographies; two shared cores under load, so ratios taken in one run):
-forward 216 ms against 465 ms for the NumPy path (scipy.sparse per band), adjoint 339 against
-495 ms.  Reading a row of :math:`W` once for all bands instead of once a band halved the
-forward (480 -> 245 ms in one run); summing a band's entries in a register instead
-(bands outer, entries inner) was slower (456 against 596 ms for NumPy in another run).
+The forward pass reads each row of :math:`W` once for all bands, not once a band (figures in
+``docs/speed_product.md``).
 """
 
 from __future__ import annotations

@@ -16,9 +16,8 @@ Airy kernels of the calibration (7×7 to 11×11) that is fewer operations than t
 is one task (it reads :math:`m` input rows); the first pass writes :math:`r`, the second
 updates :math:`u` in place (it reads only :math:`r`), so rows run in parallel in both.
 
-Measured on the paper design's crops (900x954, Airy kernels 7x7 and 11x11, 30 iterations, two
-shared cores under load): 0.47 s for two crops against 1.63 s through skimage (3.5x), largest
-difference 1.2e-6 of the maximum; the calibration deconvolves 130 such crops for five views.
+The calibration deconvolves the mask images of every view and band (130 crops for five
+``paper`` views); figures in ``docs/speed_product.md``.
 """
 
 from __future__ import annotations

@@ -7,11 +7,12 @@ element is computed the same way whatever the split, so results do not depend on
 
 from __future__ import annotations
 
+import numpy as np
 from numba import prange
 
 from recon.kernels import jit
 
-__all__ = ["combine3", "diff_dot", "extrapolate", "blocks"]
+__all__ = ["combine3", "diff_dot", "diff_sq", "extrapolate", "blocks", "squared_distance"]
 
 #: Elements per parallel block.
 _BLOCK = 1 << 15
@@ -47,6 +48,34 @@ def diff_dot(a, b, c, partial):
         for i in range(hi - lo):
             acc += (aa[i] - bb[i]) * (bb[i] - cc[i])
         partial[blk] = acc
+
+
+@jit(parallel=True)
+def diff_sq(a, b, partial):
+    r"""Block sums of :math:`(a-b)^2` into ``partial`` (float64, one per block; each
+    difference taken in float64, as NumPy does on the float64 copies it replaces)."""
+    n = a.shape[0]
+    for blk in prange((n + _BLOCK - 1) // _BLOCK):
+        lo = blk * _BLOCK
+        hi = min(n, lo + _BLOCK)
+        aa, bb = a[lo:hi], b[lo:hi]
+        acc = 0.0
+        for i in range(hi - lo):
+            d = np.float64(aa[i]) - np.float64(bb[i])
+            acc += d * d
+        partial[blk] = acc
+
+
+def squared_distance(a, b, threads=None) -> float:
+    r""":math:`\sum (a-b)^2` of two float32 C-contiguous arrays of one shape, in one pass
+    (float64 sums per block, added in order: the result does not depend on the threads)."""
+    from recon import kernels
+
+    a, b = a.reshape(-1), b.reshape(-1)
+    partial = np.empty(blocks(a.size), dtype=np.float64)
+    with kernels.threads(threads):
+        diff_sq(a, b, partial)
+    return float(partial.sum())
 
 
 @jit(parallel=True)

@@ -148,6 +148,12 @@ class ScaledOperator(LinearOperator):
     def _adjoint(self, y):
         return self._scaled(self.inner.adjoint(y))
 
+    def adjoint_add(self, y, base, scale=1.0, out=None):
+        r""":math:`b + t\,(sA)^\top y = b + (ts)\,A^\top y`: the inner operator's own
+        gradient step (fused where it has one) with the scales multiplied, not a scaled copy
+        of :math:`A^\top y` added in two more passes."""
+        return self.inner.adjoint_add(y, base, float(scale) * self.scale, out)
+
     def row_norms_sq(self):
         rn = np.asarray(self.inner.row_norms_sq())
         return rn * rn.dtype.type(self.scale ** 2)

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from recon import kernels
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
 
@@ -51,7 +52,21 @@ def check_kernel(kernel) -> np.ndarray:
 
 def convolve_views(y: np.ndarray, kernel: np.ndarray) -> np.ndarray:
     r""":math:`P * y_k` for every view ``k`` of a (K, H, W) stack, zero outside each view,
-    ``'same'`` size (FFT; the dtype of ``y`` is kept)."""
+    ``'same'`` size (the dtype of ``y`` is kept).
+
+    A float32 stack goes through the direct correlation with the mirrored kernel
+    (:func:`recon.kernels.blur.correlate_views`: one pass, threads) where the kernels run;
+    the FFT (:func:`scipy.signal.fftconvolve`) is the reference and the path for float64.
+    """
+    if kernels.usable(y, kernel):
+        from recon.kernels import blur as kblur
+
+        src = np.ascontiguousarray(y)
+        out = np.empty_like(src)
+        with kernels.threads():
+            kblur.correlate_views(src, np.ascontiguousarray(kernel[::-1, ::-1]),
+                                  np.float32(1.0), out)
+        return out
     from scipy.signal import fftconvolve
 
     out = fftconvolve(y, kernel[None].astype(y.dtype, copy=False), mode="same", axes=(1, 2))

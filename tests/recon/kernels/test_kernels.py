@@ -270,3 +270,29 @@ def test_concurrent_launches_survive_the_workqueue_layer():
                        text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
     assert r.stdout.strip().splitlines()[-1] == "workqueue"
+
+
+def test_squared_distance_matches_numpy_in_float64():
+    from recon.kernels.vector import squared_distance
+
+    rng = np.random.default_rng(12)
+    # Longer than one block; values of very different size, so float32 sums would be off.
+    a = (rng.standard_normal((3, 211, 173)) * 1e3).astype(np.float32)
+    b = a + rng.standard_normal(a.shape).astype(np.float32) * 1e-3
+    want = float(np.sum((a.astype(np.float64) - b) ** 2))
+    assert squared_distance(a, b) == pytest.approx(want, rel=1e-12)
+    assert squared_distance(a, a) == 0.0
+
+
+def test_psnr_history_is_the_same_through_the_kernel():
+    from recon.app import reconstruct
+    from recon.operators import standard_cassi
+
+    rng = np.random.default_rng(13)
+    op = standard_cassi((rng.random((16, 20)) < 0.5).astype(np.float32), step=1, n_bands=4)
+    truth = rng.random((16, 20, 4)).astype(np.float32)
+    g = op.forward(np.ascontiguousarray(np.moveaxis(truth, 2, 0)))
+    _, info = reconstruct(g, op, solver="fista-tv", iters=5, truth=truth)
+    with kernels.numpy_only():
+        _, ref = reconstruct(g, op, solver="fista-tv", iters=5, truth=truth)
+    np.testing.assert_allclose(info["psnr_history"], ref["psnr_history"], rtol=0, atol=1e-3)

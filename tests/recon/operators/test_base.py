@@ -61,3 +61,22 @@ def test_shape_mismatch_is_refused():
         op.forward(np.zeros(4))
     with pytest.raises(ValueError):
         op.adjoint(np.zeros(5))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_scaled_operator_adjoint_add_folds_the_scales(dtype):
+    from recon.operators import CalibratedCassi
+
+    rng = np.random.default_rng(5)
+    op = CalibratedCassi(rng.random((2, 3, 7, 12)).astype(np.float32),
+                         rng.uniform(0, 3, (2, 3)), cube_shape=(3, 7, 9))
+    sop = ScaledOperator(op, 0.37)
+    y = rng.standard_normal(op.oshape).astype(dtype)
+    base = rng.standard_normal(op.ishape).astype(dtype)
+    want = base.astype(np.float64) - 0.5 * 0.37 * op.adjoint(y).astype(np.float64)
+    got = sop.adjoint_add(y, base, -0.5)
+    assert got.dtype == dtype
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5)
+    out = base.copy()
+    assert sop.adjoint_add(y, out, -0.5, out=out) is out
+    np.testing.assert_allclose(out, want, rtol=1e-5, atol=1e-5)
