@@ -439,7 +439,7 @@ def bench_calibrated(design_name, scenes, views, repeat, warm, quick, converge=T
                                          frame_measurements, measurement_noise, normalised,
                                          reconstruct_views, tv_weight)
     from recon.solvers import operator_norm_sq
-    from sim.design import get_design
+    from sim.optics.design import get_design
 
     design = get_design(design_name)
     cached = is_cached(design)
