@@ -87,17 +87,13 @@ def solver_names() -> tuple[str, ...]:
 
 
 def default_tau(solver: str) -> float:
-    """The default TV weight of a solver (its function's ``tau`` default)."""
-    import inspect
-
+    """The default TV weight of a solver (:data:`recon.priors.tv.DEFAULT_WEIGHT`)."""
+    from recon.priors.tv import default_weight
     from recon.solvers import SOLVERS
 
     if solver not in SOLVERS:
         raise InputError(f"unknown solver {solver!r}; choose one of {', '.join(SOLVERS)}")
-    p = inspect.signature(SOLVERS[solver]).parameters.get("tau")
-    if p is None or p.default is inspect.Parameter.empty:
-        raise InputError(f"solver {solver!r} has no default tau; pass one")
-    return float(p.default)
+    return default_weight(solver)
 
 
 def _as_measurement(measurement, oshape) -> np.ndarray:

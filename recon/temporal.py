@@ -13,10 +13,11 @@ The proximal map of the last term is a soft threshold towards the reference,
 
 (:func:`temporal_prox`): voxels that changed by less than :math:`\mu` keep the previous value,
 which suppresses frame-to-frame flicker of the noise while moving edges (large changes) pass
-shrunk by :math:`\mu`.  :func:`gap_tv_temporal` is GAP-TV (:mod:`recon.solvers.gap_tv`) whose
-denoising step applies the spatial TV prox and then :func:`temporal_prox` (a sequential
-splitting of the prox of the sum, exact when the two commute, as plug-and-play video solvers
-do).  ``mu = 0`` gives GAP-TV exactly.
+shrunk by :math:`\mu`.  :class:`TemporalPrior` is the prior of the sum: any spatial prior's
+prox and then :func:`temporal_prox` (a sequential splitting of the prox of the sum, exact when
+the two commute, as plug-and-play video solvers do), so it goes with any solver.
+:func:`gap_tv_temporal` is GAP (:mod:`recon.solvers.gap_tv`) with that prior around TV, and
+carries the iteration's state from one frame to the next.
 """
 
 from __future__ import annotations
@@ -27,11 +28,12 @@ import numpy as np
 
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
-from recon.prox.tv import TVProx
-from recon.solvers.base import IterationLoop, SolverResult, check_problem
-from recon.solvers.gap_tv import projection_weights
+from recon.priors.base import PriorBase, check_prior
+from recon.priors.tv import TVPrior, check_weight, default_weight
+from recon.solvers.base import SolverResult, check_problem
+from recon.solvers.gap_tv import gap_tv
 
-__all__ = ["temporal_prox", "gap_tv_temporal"]
+__all__ = ["temporal_prox", "TemporalPrior", "gap_tv_temporal"]
 
 
 def temporal_prox(v: np.ndarray, ref: np.ndarray, mu: float, out: np.ndarray | None = None
@@ -63,12 +65,71 @@ def temporal_prox(v: np.ndarray, ref: np.ndarray, mu: float, out: np.ndarray | N
     return out
 
 
+class TemporalPrior(PriorBase):
+    r"""A spatial prior plus the temporal term: :math:`\varphi(f) + \mu\lVert f - r\rVert_1`.
+
+    The prox is the spatial prior's, then :func:`temporal_prox` with threshold :math:`s\mu`
+    (skipped where :math:`\mu = 0`).
+
+    Parameters
+    ----------
+    spatial : Prior
+        :math:`\varphi`.
+    ref : ndarray (L, H, W)
+        :math:`r`, the previous frame's reconstruction (band-major).
+    mu : float
+        Temporal weight (cube units), ≥ 0.
+    """
+
+    name = "temporal"
+
+    def __init__(self, spatial, ref: np.ndarray, mu: float):
+        self.spatial = check_prior(spatial)
+        ref = np.asarray(ref)
+        if ref.ndim != 3:
+            raise InputError(f"ref must be a band-major (L, H, W) cube, got shape {ref.shape}")
+        if not np.all(np.isfinite(ref)):
+            raise InputError("ref contains NaN or infinite values")
+        self.ref = ref
+        mu = float(mu)
+        if not (math.isfinite(mu) and mu >= 0):
+            raise InputError(f"mu must be finite and >= 0, got {mu}")
+        self.mu = mu
+        self.threads = getattr(spatial, "threads", None)
+
+    def prox(self, v, step, out=None):
+        out = self.spatial.prox(v, step, out=out)
+        if self.mu > 0:
+            temporal_prox(out, self.ref, self.mu * float(step), out=out)
+        return out
+
+    def value(self, x):
+        v = self.spatial.value(x)
+        if v is None:
+            return None
+        return v + self.mu * float(np.sum(np.abs(np.subtract(x, self.ref)), dtype=np.float64))
+
+    def reset(self):
+        self.spatial.reset()
+
+    def describe(self):
+        inner = self.spatial.describe() if hasattr(self.spatial, "describe") else {}
+        return {**inner, "temporal_mu": self.mu}
+
+    def state(self):
+        return self.spatial.state() if hasattr(self.spatial, "state") else {}
+
+    def load_state(self, state):
+        if hasattr(self.spatial, "load_state"):
+            self.spatial.load_state(state)
+
+
 def gap_tv_temporal(op: LinearOperator, g: np.ndarray, *, ref: np.ndarray, mu: float,
-                    iters: int = 20, tau: float = 0.1, x0: np.ndarray | None = None,
+                    iters: int = 20, tau: float | None = None, x0: np.ndarray | None = None,
                     tol: float | None = None, callback=None, tv_iters: int = 2,
                     step: float | None = None, threads: int | None = None,
-                    state: dict | None = None) -> SolverResult:
-    r"""GAP-TV with the temporal term :math:`\mu\lVert f - r\rVert_1` (see the module notes).
+                    state: dict | None = None, prior=None) -> SolverResult:
+    r"""GAP with the temporal term :math:`\mu\lVert f - r\rVert_1` (see the module notes).
 
     Parameters
     ----------
@@ -80,67 +141,38 @@ def gap_tv_temporal(op: LinearOperator, g: np.ndarray, *, ref: np.ndarray, mu: f
     mu : float
         Temporal weight (cube units), ≥ 0.
     iters, tau, x0, tol, callback, tv_iters, step, threads
-        As :func:`recon.solvers.gap_tv.gap_tv` (accelerated update, warm TV dual).  ``x0``
-        defaults to ``ref`` (the warm start).
+        As :func:`recon.solvers.gap_tv.gap_tv` (accelerated update, warm TV dual, isotropic).
+        ``x0`` defaults to ``ref`` (the warm start).
     state : dict, optional
-        The ``info["state"]`` of the previous frame's run: its TV dual ``dual`` and its
-        accumulated residual ``offset`` :math:`e = y_K - g_{t-1}`, which start this frame's
-        iteration at :math:`y_0 = g_t + e` instead of :math:`g_t`.  The accelerated GAP
-        iteration is a Bregman iteration whose accumulator holds the correction for the bias
-        of the TV step; carrying it (and the dual) over continues the previous frame's
-        iteration on the new data instead of restarting it from its first step.
+        The ``info["state"]`` of the previous frame's run: its prior's state (TV: the dual
+        ``dual``) and its accumulated residual ``offset`` :math:`e = y_K - g_{t-1}`, which
+        start this frame's iteration at :math:`y_0 = g_t + e` instead of :math:`g_t`.  The
+        accelerated GAP iteration is a Bregman iteration whose accumulator holds the
+        correction for the bias of the denoising step; carrying it (and the dual) over
+        continues the previous frame's iteration on the new data instead of restarting it
+        from its first step.
+    prior : Prior, optional
+        The spatial prior :math:`\varphi` in place of :math:`\tau\,\mathrm{TV}` (then
+        ``tau`` and ``tv_iters`` must be left out).
 
     Returns
     -------
     SolverResult
-        ``info["state"]`` holds ``dual`` and ``offset`` for the next frame.
+        ``info["state"]`` holds the prior's state and ``offset`` for the next frame.
     """
     g, x0, dtype = check_problem(op, g, x0, iters, tau, tol)
     r = np.ascontiguousarray(ref, dtype=dtype)
     if r.shape != op.ishape:
         raise InputError(f"ref shape {r.shape} does not match the operator's {op.ishape}")
-    if not np.all(np.isfinite(r)):
-        raise InputError("ref contains NaN or infinite values")
-    mu = float(mu)
-    if not (math.isfinite(mu) and mu >= 0):
-        raise InputError(f"mu must be finite and >= 0, got {mu}")
-    if int(tv_iters) < 1:
-        raise InputError(f"tv_iters must be >= 1, got {tv_iters}")
-    loop = IterationLoop(tol, callback)
-    phi_inv, step = projection_weights(op, dtype, step)
-
-    f = x0 if x0 is not None else r.copy()
-    prox = TVProx(op.ishape, dtype, True, threads)
-    y = g.copy()
-    if state is not None:
-        dual, offset = state.get("dual"), state.get("offset")
-        if dual is not None:
-            if np.shape(dual) != prox.dual.shape:
-                raise InputError(f"state dual shape {np.shape(dual)} != {prox.dual.shape}")
-            np.copyto(prox.dual, dual)
-        if offset is not None:
-            if np.shape(offset) != g.shape:
-                raise InputError(f"state offset shape {np.shape(offset)} != {g.shape}")
-            y += np.asarray(offset, dtype=dtype)
-    res = np.empty_like(g)
-    f_prev = np.empty_like(f) if loop.needs_change else None
-    hf = op.forward(f).astype(dtype, copy=False)
-    for it in range(1, int(iters) + 1):
-        if f_prev is not None:
-            np.copyto(f_prev, f)
-        y += g
-        y -= hf
-        np.subtract(y, hf, out=res)
-        res *= phi_inv
-        op.adjoint_add(res, f, out=f)
-        prox(f, tau, tv_iters, warm=True, out=f)
-        if mu > 0:
-            temporal_prox(f, r, mu, out=f)
-        hf = op.forward(f).astype(dtype, copy=False)
-        change = loop.relative_change(f, f_prev, f_prev) if f_prev is not None else None
-        if loop.step(it, f, change, None):
-            break
-    return SolverResult(x=f, iterations=loop.iterations, seconds=loop.seconds(),
-                        converged=loop.converged,
-                        info={"tv_iters": int(tv_iters), "step": step, "mu": mu,
-                              "state": {"dual": prox.dual.copy(), "offset": y - g}})
+    if prior is None:
+        weight = default_weight("gap") if tau is None else check_weight(tau, "tau")
+        prior = TVPrior(weight, op.ishape, dtype, iters=tv_iters, warm=True, isotropic=True,
+                        threads=threads)
+    elif tau is not None:
+        raise InputError("tau sets the TV prior; with prior= given, set it on the prior")
+    temporal = TemporalPrior(prior, r, mu)
+    res = gap_tv(op, g, iters=iters, prior=temporal, x0=r.copy() if x0 is None else x0,
+                 tol=tol, callback=callback, step=step, threads=threads, state=state,
+                 keep_state=True)
+    res.info["mu"] = temporal.mu
+    return res

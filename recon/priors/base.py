@@ -9,6 +9,24 @@ A prior is a regulariser :math:`\varphi` (its weight included) known through its
 or, for a plug-and-play prior, through a denoiser used in its place (the step :math:`s` then
 sets the denoising strength).  Solvers see only this contract, so any prior works with any
 solver that can take it (proximal gradient / FISTA, GAP, ADMM / half-quadratic splitting).
+
+:class:`Prior` is the contract itself (a protocol: any object with these three methods is a
+prior).  :class:`PriorBase` is a convenience base class that adds the optional operations the
+solvers use when a prior offers them, each with a generic default written with the three
+methods only, so that a prior overrides one only to make it faster or to keep its own state:
+
+- :meth:`PriorBase.gradient_prox` -- a gradient step and the prox in one,
+  :math:`\mathrm{prox}_{s\varphi}(b + c\,H^\top y)` (GAP's step; the TV prior fuses it into one
+  pass over the cube where the operator allows);
+- :meth:`PriorBase.combine_value` -- a three-term combination and its :math:`\varphi` (TwIST's
+  two-step update);
+- :meth:`PriorBase.describe` -- what a solver's ``info`` records of the prior;
+- :meth:`PriorBase.refine` -- continue an inexact (iterative) prox on the same input;
+- :meth:`PriorBase.state` / :meth:`PriorBase.load_state` -- warm-start state carried from one
+  problem to the next (a video's frames).
+
+Solvers look these up with :func:`gradient_prox`, :func:`combine_value`, :func:`refine`, so a
+bare :class:`Prior` that does not derive from :class:`PriorBase` works too.
 """
 
 from __future__ import annotations
@@ -17,7 +35,12 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-__all__ = ["Prior"]
+from recon import kernels
+from recon.errors import InputError
+
+__all__ = ["Prior", "PriorBase", "check_prior", "gradient_prox", "combine_value", "refine",
+           "describe",
+           "linear_combination"]
 
 
 @runtime_checkable
@@ -40,3 +63,130 @@ class Prior(Protocol):
     def value(self, x: np.ndarray) -> float | None: ...
 
     def reset(self) -> None: ...
+
+
+def check_prior(prior) -> Prior:
+    """``prior`` if it fulfils :class:`Prior`, else an :class:`~recon.errors.InputError`."""
+    if not isinstance(prior, Prior):
+        raise InputError(f"prior must be a recon prior (prox, value, reset), got "
+                         f"{type(prior).__name__}; recon.priors.make_prior builds one by name")
+    return prior
+
+
+class PriorBase:
+    """Generic versions of the optional operations (see the module notes).
+
+    Subclasses implement :meth:`prox`, :meth:`value` and :meth:`reset`.
+    """
+
+    def prox(self, v: np.ndarray, step: float, out: np.ndarray | None = None) -> np.ndarray:
+        raise NotImplementedError
+
+    def value(self, x: np.ndarray) -> float | None:
+        return None
+
+    def reset(self) -> None:
+        return None
+
+    def gradient_prox(self, op, y: np.ndarray, base: np.ndarray, step: float,
+                      scale: float = 1.0, out: np.ndarray | None = None) -> np.ndarray:
+        r""":math:`\mathrm{prox}_{s\varphi}(b + c\,H^\top y)` with :math:`s` = ``step``,
+        :math:`b` = ``base``, :math:`c` = ``scale``; ``out`` may be ``base``.
+
+        Generic: ``op.adjoint_add`` then :meth:`prox`.
+        """
+        out = op.adjoint_add(y, base, scale, out=out)
+        return self.prox(out, step, out=out)
+
+    def combine_value(self, a: float, u: np.ndarray, b: float, v: np.ndarray, c: float,
+                      w: np.ndarray, out: np.ndarray) -> float | None:
+        r"""``out`` :math:`= a u + b v + c w` (``out`` aliases no input) and
+        :math:`\varphi(\mathrm{out})`.
+
+        Generic: the combination (:func:`recon.kernels.vector.combine3` or NumPy), then
+        :meth:`value`.
+        """
+        linear_combination(a, u, b, v, c, w, out, getattr(self, "threads", None))
+        return self.value(out)
+
+    def refine(self, v: np.ndarray, step: float, out: np.ndarray) -> int:
+        """Continue the prox of ``v`` (the input of the last call) into ``out``, when the
+        prox is iterative and was stopped early; return the inner iterations done (0: the
+        prox is exact or cannot be continued, ``out`` is unchanged)."""
+        return 0
+
+    def describe(self) -> dict:
+        """What a solver's ``info`` records of this prior: at least ``{"prior": name}``."""
+        return {"prior": getattr(self, "name", type(self).__name__)}
+
+    def state(self) -> dict:
+        """Warm-start state to carry to the next problem (copies); empty by default."""
+        return {}
+
+    def load_state(self, state: dict) -> None:
+        """Start from a :meth:`state` of an earlier problem of the same shape."""
+        return None
+
+
+def gradient_prox(prior, op, y, base, step, scale=1.0, out=None) -> np.ndarray:
+    """:meth:`PriorBase.gradient_prox` of ``prior``, or its generic form for a bare prior."""
+    fn = getattr(prior, "gradient_prox", None)
+    if fn is not None:
+        return fn(op, y, base, step, scale, out=out)
+    return PriorBase.gradient_prox(prior, op, y, base, step, scale, out=out)
+
+
+def combine_value(prior, a, u, b, v, c, w, out) -> float | None:
+    """:meth:`PriorBase.combine_value` of ``prior``, or its generic form for a bare prior."""
+    fn = getattr(prior, "combine_value", None)
+    if fn is not None:
+        return fn(a, u, b, v, c, w, out)
+    return PriorBase.combine_value(prior, a, u, b, v, c, w, out)
+
+
+def describe(prior) -> dict:
+    """:meth:`PriorBase.describe` of ``prior``; ``{"prior": its class name}`` for a bare one."""
+    fn = getattr(prior, "describe", None)
+    return {"prior": type(prior).__name__} if fn is None else dict(fn())
+
+
+def refine(prior, v, step, out) -> int:
+    """:meth:`PriorBase.refine` of ``prior``; 0 for a bare prior."""
+    fn = getattr(prior, "refine", None)
+    return 0 if fn is None else int(fn(v, step, out))
+
+
+#: Elements per block of :func:`linear_combination`'s NumPy path (a block and its scratch stay
+#: in L2 cache).
+_BLOCK = 1 << 16
+
+
+def linear_combination(a: float, u: np.ndarray, b: float, v: np.ndarray, c: float,
+                       w: np.ndarray, out: np.ndarray, threads: int | None = None) -> np.ndarray:
+    """``out = a*u + b*v + c*w`` in one pass (:func:`recon.kernels.vector.combine3`), or with
+    NumPy block by block: no array-sized temporaries, and each block is read once from memory
+    (``out`` must alias none of the inputs); threaded over spans."""
+    from recon.prox.tv import parallel_spans
+
+    uf, vf, wf, of = u.reshape(-1), v.reshape(-1), w.reshape(-1), out.reshape(-1)
+    if kernels.usable(u, v, w, out):
+        from recon.kernels import vector as kvec
+
+        t = out.dtype.type
+        with kernels.threads(threads):
+            kvec.combine3(t(a), uf, t(b), vf, t(c), wf, of)
+        return out
+
+    def run(lo, hi):
+        tmp = np.empty(min(_BLOCK, hi - lo), dtype=out.dtype)
+        for i in range(lo, hi, _BLOCK):
+            j = min(hi, i + _BLOCK)
+            o, t = of[i:j], tmp[:j - i]
+            np.multiply(uf[i:j], a, out=o)
+            np.multiply(vf[i:j], b, out=t)
+            o += t
+            np.multiply(wf[i:j], c, out=t)
+            o += t
+
+    parallel_spans(run, of.size, threads, min_span=4 * _BLOCK)
+    return out

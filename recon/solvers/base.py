@@ -1,13 +1,15 @@
-r"""What every solver shares: the result record, the callback protocol, input checks, stopping.
+r"""What every solver shares: the result record, the callback protocol, input checks, stopping,
+and the prior a solver is given (:func:`resolve_prior`).
 
-Every solver minimises (or, for GAP-TV, approximately minimises)
+Every solver minimises (or, for GAP and a plug-and-play denoiser, approximately minimises)
 
 .. math::
 
-    \min_f \; \tfrac12 \|g - Hf\|_2^2 + \tau\, \mathrm{TV}(f)
+    \min_f \; \tfrac12 \|g - Hf\|_2^2 + \varphi(f)
 
 for a :class:`~recon.operators.LinearOperator` :math:`H` with ``ishape`` ``(L, H, W)`` (the
-band-major cube) and any ``oshape`` (``(K, Hv, Wm)`` for CASSI, any number of views).  The loop
+band-major cube) and any ``oshape`` (``(K, Hv, Wm)`` for CASSI, any number of views), and a
+prior :math:`\varphi` (:mod:`recon.priors`; by default :math:`\tau\,\mathrm{TV}`).  The loop
 runs in float32, or in float64 when the measurement is float64 (for precision checks).
 
 Stopping: after ``iters`` iterations, or earlier when ``tol`` is given and the relative change
@@ -26,10 +28,12 @@ import numpy as np
 
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
+from recon.priors import check_prior, make_prior
+from recon.priors.tv import check_weight
 from recon.prox.tv import tv_norm
 
 __all__ = ["SolverResult", "Callback", "IterationLoop", "check_problem", "objective",
-           "operator_norm_sq"]
+           "operator_norm_sq", "resolve_prior"]
 
 
 @dataclass
@@ -114,14 +118,58 @@ def check_problem(op: LinearOperator, g, x0, iters, tau, tol):
             raise InputError("x0 contains NaN or infinite values")
     if isinstance(iters, bool) or not isinstance(iters, (int, np.integer)) or iters < 1:
         raise InputError(f"iters must be an integer >= 1, got {iters!r}")
-    tau = float(tau)
-    if not math.isfinite(tau) or tau < 0:
-        raise InputError(f"tau must be finite and >= 0, got {tau}")
+    if tau is not None:
+        check_weight(tau, "tau")
     if tol is not None:
         tol = float(tol)
         if not math.isfinite(tol) or tol <= 0:
             raise InputError(f"tol must be > 0, got {tol}")
     return g, x0, dtype
+
+
+def resolve_prior(prior, solver: str, shape, dtype, *, tau=None, tv_iters=None,
+                  warm_dual=None, isotropic=None, threads=None):
+    r"""The prior a solver runs with, reset (a cold start).
+
+    Parameters
+    ----------
+    prior : Prior, str or None
+        A :class:`~recon.priors.Prior`; or a name of :data:`recon.priors.PRIORS`, built with
+        ``tau`` as its weight; or None: the TV prior :math:`\tau\,\mathrm{TV}` (``tau``
+        None: the solver's default, :data:`recon.priors.tv.DEFAULT_WEIGHT`), the solvers'
+        behaviour before priors were parts.
+    solver : str
+        The solver's name (for the default weight).
+    shape, dtype
+        The cube's shape and the loop's precision.
+    tau, tv_iters, warm_dual, isotropic, threads
+        The TV prior's options (None: its defaults).  With a prior object, only ``threads``
+        may be given (for the solver's own work): the prior carries its options.
+
+    Raises
+    ------
+    InputError
+        A prior object given together with TV options, or an unknown name.
+    """
+    tv = {k: v for k, v in (("tv_iters", tv_iters), ("warm_dual", warm_dual),
+                            ("isotropic", isotropic)) if v is not None}
+    if prior is None or isinstance(prior, str):
+        prior = make_prior("tv" if prior is None else prior, shape=shape, dtype=dtype,
+                           weight=tau, solver=solver, threads=threads, **tv)
+    else:
+        given = sorted((["tau"] if tau is not None else []) + list(tv))
+        if given:
+            raise InputError(f"{', '.join(given)} set the TV prior; with prior= given, set "
+                             f"them on the prior itself")
+        check_prior(prior)
+    prior.reset()
+    return prior
+
+
+def prior_value(prior, x) -> float | None:
+    """:math:`\varphi(x)` as a float, or None where the prior defines no value."""
+    v = prior.value(x)
+    return None if v is None else float(v)
 
 
 def data_misfit(op: LinearOperator, g: np.ndarray, x: np.ndarray) -> tuple[float, np.ndarray]:

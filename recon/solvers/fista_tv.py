@@ -1,24 +1,27 @@
-r"""FISTA-TV: fast iterative shrinkage/thresholding with a TV prox (Beck & Teboulle 2009).
+r"""FISTA: fast iterative shrinkage/thresholding (Beck & Teboulle 2009) with any prior.
 
 A. Beck, M. Teboulle, "Fast gradient-based algorithms for constrained total variation image
 denoising and deblurring problems", IEEE TIP 18(11), 2009.  For
 
 .. math::
 
-    \min_f \; \tfrac12\|g-Hf\|_2^2 + \tau\,\mathrm{TV}(f)
+    \min_f \; \tfrac12\|g-Hf\|_2^2 + \varphi(f)
 
-with :math:`L \ge \|H\|_2^2` (power iteration):
+(:math:`\varphi` a prior of :mod:`recon.priors`, by default :math:`\tau\,\mathrm{TV}`) with
+:math:`L \ge \|H\|_2^2` (power iteration):
 
 .. math::
 
-    f_k &= \mathrm{prox}_{(\tau/L)\mathrm{TV}}\bigl(z_k + H^\top(g-Hz_k)/L\bigr) \\
+    f_k &= \mathrm{prox}_{\varphi/L}\bigl(z_k + H^\top(g-Hz_k)/L\bigr) \\
     t_{k+1} &= \bigl(1+\sqrt{1+4t_k^2}\bigr)/2, \qquad
     z_{k+1} = f_k + \frac{t_k-1}{t_{k+1}}(f_k - f_{k-1}).
 
 with an adaptive restart of the momentum (O'Donoghue & Candès 2015).  It minimises the same
 objective as TwIST for any operator (any number of views, no
 assumption on :math:`HH^\top`), with one forward and one adjoint per iteration.  The TV prox is
-warm-started from the previous dual.
+warm-started from the previous dual.  With a plug-and-play denoiser in place of the prox
+(a prior whose ``value`` is None) it is PnP-FISTA, and the restart tests the step's direction
+only.
 """
 
 from __future__ import annotations
@@ -30,19 +33,20 @@ import numpy as np
 from recon import kernels
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
-from recon.prox.tv import TVProx, tv_norm
+from recon.priors.base import describe as prior_info
 from recon.solvers.base import (IterationLoop, SolverResult, check_problem, data_misfit,
-                                operator_norm_sq)
+                                operator_norm_sq, prior_value, resolve_prior)
 
 __all__ = ["fista_tv"]
 
 
-def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float = 0.15,
-             x0: np.ndarray | None = None, tol: float | None = None, callback=None,
-             tv_iters: int = 2, warm_dual: bool = True, lipschitz: float | None = None,
-             isotropic: bool = True, objective: bool = False, restart: bool = True,
+def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
+             tau: float | None = None, x0: np.ndarray | None = None, tol: float | None = None,
+             callback=None, tv_iters: int | None = None, warm_dual: bool | None = None,
+             lipschitz: float | None = None, isotropic: bool | None = None,
+             objective: bool = False, restart: bool = True,
              threads: int | None = None) -> SolverResult:
-    r"""Reconstruct with FISTA and a TV prior.
+    r"""Reconstruct with FISTA and a prior (by default TV).
 
     Parameters
     ----------
@@ -50,16 +54,21 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float =
         ishape ``(L, H, W)``, any oshape.
     g : ndarray, shape ``op.oshape``
     iters : int
-    tau : float
-        Weight :math:`\tau` of the TV term.
+    prior : Prior or str, optional
+        The prior :math:`\varphi` (:mod:`recon.priors`; a name is built with ``tau`` as its
+        weight).  Default: :math:`\tau\,\mathrm{TV}` with the options below.
+    tau : float, optional
+        Weight :math:`\tau` of the TV term (default
+        :data:`recon.priors.tv.DEFAULT_WEIGHT`\ ``["fista"]``).
     x0 : ndarray, optional
         Start; :math:`H^\top g / L` if omitted.
     tol : float, optional
         Stop when the relative change of :math:`f` falls below it.
     callback : Callback, optional
-    tv_iters : int
-        Chambolle iterations per prox (warm-started).
-    warm_dual : bool
+    tv_iters : int, optional
+        Chambolle iterations per prox (warm-started; default 2).
+    warm_dual : bool, optional
+        Default True.
     lipschitz : float, optional
         :math:`L \ge \|H\|^2`; a power iteration if omitted.
     isotropic : bool
@@ -68,17 +77,18 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float =
     restart : bool
         Adaptive restart of the momentum (default on) when the objective rises or the step
         points against the generalised gradient; costs one forward and a TV norm per
-        iteration.  Without it the inexact (warm-started) prox makes FISTA oscillate.
+        iteration (the prior's value, where it has one).  Without it the inexact
+        (warm-started) prox makes FISTA oscillate.
     threads : int, optional
+        Threads of the TV prior and of the momentum's vector kernels.
 
     Returns
     -------
     SolverResult
     """
     g, x0, dtype = check_problem(op, g, x0, iters, tau, tol)
-    if int(tv_iters) < 1:
-        raise InputError(f"tv_iters must be >= 1, got {tv_iters}")
-    tau = float(tau)
+    prior = resolve_prior(prior, "fista", op.ishape, dtype, tau=tau, tv_iters=tv_iters,
+                          warm_dual=warm_dual, isotropic=isotropic, threads=threads)
     loop = IterationLoop(tol, callback)
     lip = operator_norm_sq(op, dtype=dtype) if lipschitz is None else float(lipschitz)
     if not lip > 0:
@@ -90,7 +100,6 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float =
     f = x0
     f_prev = f.copy()
     z = f.copy()
-    prox = TVProx(op.ishape, dtype, isotropic, threads)
     t = 1.0
     restarts = 0
     prev_obj = math.inf
@@ -106,7 +115,7 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float =
             np.subtract(g, r_z, out=r_z)
         op.adjoint_add(r_z, z, 1.0 / lip, out=step)
         f_prev, f = f, f_prev
-        prox(step, tau / lip, tv_iters, warm=warm_dual, out=f)
+        prior.prox(step, 1.0 / lip, out=f)
         # Adaptive restart (O'Donoghue & Candes 2015): momentum is dropped when the objective
         # rises or the step f - f_prev points against the generalised gradient z - f.  With
         # an inexact (warm-started) prox plain FISTA oscillates instead of converging.
@@ -114,8 +123,10 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float =
         if objective or restart:
             misfit, r_new = data_misfit(op, g, f)
             r_f_prev, r_f = r_f, r_new
-            obj = misfit + tau * tv_norm(f, isotropic)
-        if restart and (_restart_dot(z, f, f_prev, step, threads) > 0 or obj > prev_obj):
+            value = prior_value(prior, f)
+            obj = None if value is None else misfit + value
+        if restart and (_restart_dot(z, f, f_prev, step, threads) > 0
+                        or (obj is not None and obj > prev_obj)):
             t = 1.0
             restarts += 1
         prev_obj = obj if obj is not None else prev_obj
@@ -130,7 +141,7 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float =
             r_z = np.subtract(r_f, r_f_prev)
             r_z *= b
             r_z += r_f
-        if objective:
+        if objective and obj is not None:
             history.append(obj)
         change = loop.relative_change(f, f_prev, step) if loop.needs_change else None
         if loop.step(it, f, change, obj):
@@ -138,7 +149,7 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float =
 
     return SolverResult(x=f, iterations=loop.iterations, objective=history,
                         seconds=loop.seconds(), converged=loop.converged,
-                        info={"lipschitz": lip, "tv_iters": int(tv_iters), "restarts": restarts})
+                        info={"lipschitz": lip, "restarts": restarts, **prior_info(prior)})
 
 
 def _restart_dot(z: np.ndarray, f: np.ndarray, f_prev: np.ndarray, work: np.ndarray,

@@ -6,11 +6,14 @@ of the paper (Sec. 3.2, Eq. 6) for
 
 .. math::
 
-    \min_f \; \tfrac12\|g-Hf\|_2^2 + \tau\,\mathrm{TV}(f).
+    \min_f \; \tfrac12\|g-Hf\|_2^2 + \varphi(f),
+
+with a prior :math:`\varphi` of :mod:`recon.priors` that has a value (the monotone test needs
+the objective), by default :math:`\tau\,\mathrm{TV}` (the paper's).
 
 With :math:`s` an upper estimate of :math:`\|H\|_2^2` (``max_svd``) and
-:math:`\Psi_\lambda = \mathrm{prox}_{\lambda\mathrm{TV}}`, the IST step is
-:math:`\Gamma(f) = \Psi_{\tau/s}\bigl(f + H^\top(g-Hf)/s\bigr)` and the two-step update is
+:math:`\Psi_{1/s} = \mathrm{prox}_{\varphi/s}`, the IST step is
+:math:`\Gamma(f) = \Psi_{1/s}\bigl(f + H^\top(g-Hf)/s\bigr)` and the two-step update is
 
 .. math::
 
@@ -36,7 +39,8 @@ its residual).
 Monotone safeguard (on by default, as in the authors' ``TwIST.m``): when a two-step update
 raises the objective it is rejected and the plain IST step :math:`\Gamma(f_t)` is taken; if that
 too raises the objective, the warm-started prox is first continued on the same input (up to
-``_MAX_REFINE`` more dual iterations: a 2-iteration prox is inexact near convergence), and only
+``_MAX_REFINE`` more dual iterations: a 2-iteration prox is inexact near convergence; the
+prior's ``refine``), and only
 then is :math:`s` taken to be too small and doubled.  So the objective never increases.  The
 first iteration is an IST step.
 """
@@ -47,11 +51,12 @@ import math
 
 import numpy as np
 
-from recon import kernels
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
-from recon.prox.tv import TVProx, parallel_spans, tv_norm
-from recon.solvers.base import IterationLoop, SolverResult, check_problem, data_misfit
+from recon.priors.base import combine_value, linear_combination, refine
+from recon.priors.base import describe as prior_info
+from recon.solvers.base import (IterationLoop, SolverResult, check_problem, data_misfit,
+                                prior_value, resolve_prior)
 
 __all__ = ["twist", "twist_parameters", "norm_estimate", "DEFAULT_LAM1"]
 
@@ -144,13 +149,13 @@ def norm_estimate(op: LinearOperator, start: np.ndarray | None = None, n_iter: i
     return safety * top if top > 0 else 0.0
 
 
-def twist(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float = 0.15,
-          x0: np.ndarray | None = None, tol: float | None = None, callback=None,
-          tv_iters: int = 2, warm_dual: bool = True, lam1: float = DEFAULT_LAM1,
-          alpha: float | None = None, beta: float | None = None, monotone: bool = True,
-          max_svd: float | None = None, norm_iters: int = 6, isotropic: bool = True,
-          threads: int | None = None) -> SolverResult:
-    r"""Reconstruct with TwIST and a TV prior.
+def twist(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
+          tau: float | None = None, x0: np.ndarray | None = None, tol: float | None = None,
+          callback=None, tv_iters: int | None = None, warm_dual: bool | None = None,
+          lam1: float = DEFAULT_LAM1, alpha: float | None = None, beta: float | None = None,
+          monotone: bool = True, max_svd: float | None = None, norm_iters: int = 6,
+          isotropic: bool | None = None, threads: int | None = None) -> SolverResult:
+    r"""Reconstruct with TwIST and a prior (by default TV).
 
     Parameters
     ----------
@@ -159,18 +164,23 @@ def twist(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float = 0.
     g : ndarray, shape ``op.oshape``
     iters : int
         Outer (accepted) iterations.
-    tau : float
-        Weight :math:`\tau` of the TV term (paper: 0.1-0.15).
+    prior : Prior or str, optional
+        The prior :math:`\varphi` (:mod:`recon.priors`; a name is built with ``tau`` as its
+        weight); it must have a value.  Default: :math:`\tau\,\mathrm{TV}` with the options
+        below.
+    tau : float, optional
+        Weight :math:`\tau` of the TV term (paper: 0.1-0.15; default
+        :data:`recon.priors.tv.DEFAULT_WEIGHT`\ ``["twist"]``).
     x0 : ndarray, optional
         Start; :math:`H^\top g` (the paper's choice) if omitted.
     tol : float, optional
         Stop when the relative change of :math:`f` falls below it.
     callback : Callback, optional
-    tv_iters : int
-        Chambolle iterations per TV prox.  The paper uses about 10 from a cold start; with the
+    tv_iters : int, optional
+        Chambolle iterations per TV prox (default 2).  The paper uses about 10 from a cold start; with the
         warm-started dual (the default) 2 suffice (keep it even: with the dual step 1/4 an odd
         count leaves a period-2 oscillation of a warm dual).
-    warm_dual : bool
+    warm_dual : bool, optional
         Start each prox from the previous dual (default; more accurate for the same cost).
     lam1, alpha, beta : float
         TwIST parameters; ``alpha``/``beta`` default to :func:`twist_parameters` of ``lam1``.
@@ -183,7 +193,7 @@ def twist(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float = 0.
         objective.
     norm_iters : int
         Lanczos steps (forward/adjoint pairs) of the norm estimate when ``max_svd`` is omitted.
-    isotropic : bool
+    isotropic : bool, optional
     threads : int, optional
         Threads of the TV prox, the TV norm and the two-step combination.
 
@@ -193,12 +203,17 @@ def twist(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float = 0.
         ``objective`` holds the objective of every accepted iterate; ``info`` has
         ``max_svd``, ``alpha``, ``beta``, ``rejected`` (two-step updates replaced by IST),
         ``svd_doublings``, ``prox_refinements`` (continued proxes of failed IST steps) and
-        ``tv_iters``.
+        the prior's description (TV: ``tv_iters`` ...).
+
+    Raises
+    ------
+    InputError
+        Bad inputs, or a prior without a value (a plug-and-play denoiser: use ``fista``,
+        ``gap-tv`` or ``admm``).
     """
     g, x0, dtype = check_problem(op, g, x0, iters, tau, tol)
-    if int(tv_iters) < 1:
-        raise InputError(f"tv_iters must be >= 1, got {tv_iters}")
-    tau = float(tau)
+    prior = resolve_prior(prior, "twist", op.ishape, dtype, tau=tau, tv_iters=tv_iters,
+                          warm_dual=warm_dual, isotropic=isotropic, threads=threads)
     a_def, b_def = twist_parameters(lam1)
     alpha = a_def if alpha is None else float(alpha)
     beta = b_def if beta is None else float(beta)
@@ -209,7 +224,6 @@ def twist(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float = 0.
     max_svd = float(max_svd)
     if not max_svd > 0:
         raise InputError("the operator is zero (or max_svd <= 0): nothing to reconstruct")
-    prox = TVProx(op.ishape, dtype, isotropic, threads)
     xm1 = x.copy()           # f_{t-1}
     ist = np.empty_like(x)   # Gamma(f_t)
     vin = np.empty_like(x)   # the prox input f_t + H^T(g - H f_t)/s
@@ -221,7 +235,12 @@ def twist(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float = 0.
     resid_m1 = resid.copy()
     resid_ist = np.empty_like(resid)
     resid_new = np.empty_like(resid)
-    prev_f = misfit + tau * tv_norm(x, isotropic, threads)
+    value = prior_value(prior, x)
+    if value is None:
+        raise InputError(f"twist needs a prior with a value (its monotone test compares "
+                         f"objectives); {prior_info(prior)['prior']!r} has none: use fista-tv, "
+                         f"gap-tv or admm")
+    prev_f = misfit + value
     history: list[float] = []
     rejected = doublings = refinements = 0
     twist_steps = 0          # TwIST.m's TwIST_iters: 0 forces an IST step
@@ -237,14 +256,15 @@ def twist(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float = 0.
                 # The gradient step, fused with the adjoint where the operator can; a
                 # doubled s (rare) recomputes the adjoint rather than keeping it.
                 op.adjoint_add(resid, x, 1.0 / max_svd, out=vin)
-                prox(vin, tau / max_svd, tv_iters, warm=warm_dual, out=ist)
+                prior.prox(vin, 1.0 / max_svd, out=ist)
                 _residual(op, g, ist, resid_ist)
                 ist_svd, ist_f = max_svd, None
             if twist_steps != 0:
                 # f_{t+1} = (1-alpha) f_{t-1} + (alpha-beta) f_t + beta Gamma(f_t)
-                tv_new = _combine_tv(c_m1, xm1, c_0, x, beta, ist, new, isotropic, threads)
-                _combine(c_m1, resid_m1, c_0, resid, beta, resid_ist, resid_new, threads)
-                f_val = 0.5 * float(np.vdot(resid_new, resid_new)) + tau * tv_new
+                value_new = combine_value(prior, c_m1, xm1, c_0, x, beta, ist, new)
+                linear_combination(c_m1, resid_m1, c_0, resid, beta, resid_ist, resid_new,
+                                   threads)
+                f_val = 0.5 * float(np.vdot(resid_new, resid_new)) + value_new
                 if monotone and f_val > prev_f:
                     rejected += 1
                     twist_steps = 0
@@ -254,16 +274,15 @@ def twist(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float = 0.
                 resid_m1, resid, resid_new = resid, resid_new, resid_m1
                 break
             if ist_f is None:
-                ist_f = (0.5 * float(np.vdot(resid_ist, resid_ist))
-                         + tau * tv_norm(ist, isotropic, threads))
+                ist_f = 0.5 * float(np.vdot(resid_ist, resid_ist)) + prior.value(ist)
             f_val = ist_f
             if f_val > prev_f:
-                if refined < _MAX_REFINE:
+                done = refine(prior, vin, 1.0 / max_svd, ist) if refined < _MAX_REFINE else 0
+                if done:
                     # A few warm dual iterations need not decrease the objective near the
                     # optimum: continue the prox on the same input before blaming s.
-                    prox(vin, tau / max_svd, tv_iters, warm=True, out=ist)
                     _residual(op, g, ist, resid_ist)
-                    refined += tv_iters
+                    refined += done
                     refinements += 1
                     ist_f = None
                     continue
@@ -298,59 +317,9 @@ def twist(op: LinearOperator, g: np.ndarray, *, iters: int = 50, tau: float = 0.
                         seconds=loop.seconds(), converged=loop.converged,
                         info={"max_svd": max_svd, "alpha": alpha, "beta": beta,
                               "rejected": rejected, "svd_doublings": doublings,
-                              "prox_refinements": refinements,
-                              "tv_iters": int(tv_iters)})
+                              "prox_refinements": refinements, **prior_info(prior)})
 
 
 def _residual(op: LinearOperator, g: np.ndarray, x: np.ndarray, out: np.ndarray) -> None:
     """``out = g - H x``."""
     np.subtract(g, op.forward(x), out=out)
-
-
-def _combine_tv(a: float, u: np.ndarray, b: float, v: np.ndarray, c: float, w: np.ndarray,
-                out: np.ndarray, isotropic: bool, threads: int | None = None) -> float:
-    r"""``out = a*u + b*v + c*w`` and :math:`\mathrm{TV}(\mathrm{out})`, in one pass over the
-    cubes where the kernels run (:func:`recon.kernels.tv.combine_tv_rows`)."""
-    if kernels.usable(u, v, w, out) and all(x.flags.c_contiguous for x in (u, v, w, out)):
-        from recon.kernels import tv as ktv
-
-        t = out.dtype.type
-        rows = np.empty(out.shape[:2], dtype=np.float64)
-        with kernels.threads(threads):
-            ktv.combine_tv_rows(t(a), u, t(b), v, t(c), w, out, bool(isotropic), rows)
-        return float(rows.sum(axis=1).sum())
-    _combine(a, u, b, v, c, w, out, threads)
-    return tv_norm(out, isotropic, threads)
-
-
-#: Elements per block of :func:`_combine` (a block and its scratch stay in L2 cache).
-_BLOCK = 1 << 16
-
-
-def _combine(a: float, u: np.ndarray, b: float, v: np.ndarray, c: float, w: np.ndarray,
-             out: np.ndarray, threads: int | None = None) -> np.ndarray:
-    """``out = a*u + b*v + c*w`` in one pass (:func:`recon.kernels.vector.combine3`), or with
-    NumPy block by block: no array-sized temporaries, and each block is read once from memory
-    (``out`` must alias none of the inputs); threaded over spans."""
-    uf, vf, wf, of = u.reshape(-1), v.reshape(-1), w.reshape(-1), out.reshape(-1)
-    if kernels.usable(u, v, w, out):
-        from recon.kernels import vector as kvec
-
-        t = out.dtype.type
-        with kernels.threads(threads):
-            kvec.combine3(t(a), uf, t(b), vf, t(c), wf, of)
-        return out
-
-    def run(lo, hi):
-        tmp = np.empty(min(_BLOCK, hi - lo), dtype=out.dtype)
-        for i in range(lo, hi, _BLOCK):
-            j = min(hi, i + _BLOCK)
-            o, t = of[i:j], tmp[:j - i]
-            np.multiply(uf[i:j], a, out=o)
-            np.multiply(vf[i:j], b, out=t)
-            o += t
-            np.multiply(wf[i:j], c, out=t)
-            o += t
-
-    parallel_spans(run, of.size, threads, min_span=4 * _BLOCK)
-    return out

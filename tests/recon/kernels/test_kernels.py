@@ -17,7 +17,8 @@ from recon.operators import dot_test
 from recon.prox import TVProx, tv_norm_per_band
 from recon.solvers import solve
 from recon.solvers.fista_tv import _extrapolate, _restart_dot
-from recon.solvers.twist import _combine, _combine_tv
+from recon.priors import TVPrior
+from recon.priors.base import linear_combination as _combine
 
 pytestmark = pytest.mark.skipif(not kernels.enabled(), reason="Numba kernels switched off")
 
@@ -169,9 +170,10 @@ def test_combine_with_tv_matches_numpy(isotropic, shape):
     rng = np.random.default_rng(12)
     u, v, w = (rng.standard_normal(shape).astype(np.float32) for _ in range(3))
     out, ref = np.empty_like(u), np.empty_like(u)
-    tv = _combine_tv(-0.67, u, 0.36, v, 3.3, w, out, isotropic)
+    tv = TVPrior(1.0, isotropic=isotropic).combine_value(-0.67, u, 0.36, v, 3.3, w, out)
     with kernels.numpy_only():
-        tv_ref = _combine_tv(-0.67, u, 0.36, v, 3.3, w, ref, isotropic)
+        tv_ref = TVPrior(1.0, isotropic=isotropic).combine_value(-0.67, u, 0.36, v, 3.3, w,
+                                                                  ref)
     assert rel(out, ref) < RTOL32
     assert tv == pytest.approx(tv_ref, rel=RTOL32)
 
