@@ -29,10 +29,13 @@ import math
 
 import numpy as np
 
+from recon import kernels
 from recon.errors import InputError
+from recon.priors.base import PriorBase
 from recon.prox.tv import TVProx, tv_norm
 
-__all__ = ["SubspaceTV", "SubspaceDenoiser", "leading_basis", "default_rank"]
+__all__ = ["SubspaceTV", "band_gram", "symmetric_eigh", "leading_basis", "project", "expand",
+           "default_rank", "make_subspace_tv"]
 
 
 def default_rank(n_bands: int) -> int:
@@ -40,6 +43,34 @@ def default_rank(n_bands: int) -> int:
     least 3 and at most :math:`L` (8 for CAVE's 31 bands, 7 for 28)."""
     n_bands = int(n_bands)
     return max(1, min(n_bands, max(3, -(-n_bands // 4))))
+
+
+def band_gram(v: np.ndarray) -> np.ndarray:
+    r"""The band Gram matrix :math:`v v^\top` (``(L, L)`` float64) of a cube ``(L, H, W)``."""
+    n_bands = v.shape[0]
+    m = v.reshape(n_bands, -1)
+    if kernels.usable(m) and m.flags.c_contiguous:
+        from recon.kernels import subspace as ks
+
+        partial = np.empty((ks.blocks(m.shape[1]), n_bands, n_bands))
+        with kernels.threads():
+            ks.gram(m, partial)
+        return partial.sum(axis=0)
+    m = m.astype(np.float64)
+    return m @ m.T
+
+
+def symmetric_eigh(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenvalues (ascending) and eigenvectors of a small symmetric matrix: cyclic Jacobi
+    (:func:`recon.kernels.subspace.jacobi_eigh`) where the kernels run, else
+    :func:`numpy.linalg.eigh`."""
+    if kernels.enabled():
+        from recon.kernels import subspace as ks
+
+        w, vecs = ks.jacobi_eigh(np.array(a, dtype=np.float64), 1e-12, 50)
+        order = np.argsort(w, kind="stable")
+        return w[order], vecs[:, order]
+    return np.linalg.eigh(a)
 
 
 def leading_basis(v: np.ndarray, rank: int, previous: np.ndarray | None = None) -> np.ndarray:
@@ -60,11 +91,7 @@ def leading_basis(v: np.ndarray, rank: int, previous: np.ndarray | None = None) 
         Orthonormal columns, by decreasing eigenvalue.  Without ``previous`` each column's
         sign makes its sum non-negative.
     """
-    n_bands = v.shape[0]
-    m = v.reshape(n_bands, -1)
-    # The Gram matrix in float64 (an L x L sum over N pixels), its eigenvectors by eigh.
-    gram = m @ m.T if m.dtype == np.float64 else (m @ m.T).astype(np.float64)
-    _, vecs = np.linalg.eigh(gram)
+    _, vecs = symmetric_eigh(band_gram(v))
     basis = np.ascontiguousarray(vecs[:, ::-1][:, :rank])
     if previous is not None and previous.shape == basis.shape:
         signs = np.sign(np.einsum("lk,lk->k", basis, previous))
@@ -75,7 +102,38 @@ def leading_basis(v: np.ndarray, rank: int, previous: np.ndarray | None = None) 
     return basis
 
 
-class _Subspace:
+def project(e: np.ndarray, v: np.ndarray) -> np.ndarray:
+    r""":math:`z = E^\top v`, shape ``(k, H, W)``, for a basis ``e`` ``(L, k)`` in ``v``'s dtype."""
+    m = v.reshape(v.shape[0], -1)
+    if kernels.usable(e, m) and m.flags.c_contiguous:
+        from recon.kernels import subspace as ks
+
+        z = np.empty((e.shape[1], m.shape[1]), dtype=m.dtype)
+        with kernels.threads():
+            ks.project(np.ascontiguousarray(e), m, z)
+    else:
+        z = e.T @ m
+    return z.reshape((e.shape[1],) + v.shape[1:])
+
+
+def expand(e: np.ndarray, z: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    r""":math:`x = E z`, shape ``(L, H, W)``, into ``out`` if given (``out`` may not be ``z``)."""
+    shape = (e.shape[0],) + z.shape[1:]
+    zf = z.reshape(z.shape[0], -1)
+    if out is None:
+        out = np.empty(shape, dtype=z.dtype)
+    if kernels.usable(e, zf, out) and zf.flags.c_contiguous and out.flags.c_contiguous:
+        from recon.kernels import subspace as ks
+
+        with kernels.threads():
+            ks.expand(np.ascontiguousarray(e), zf, out.reshape(e.shape[0], -1))
+        return out
+    np.matmul(e, zf, out=out.reshape(e.shape[0], -1)) if out.flags.c_contiguous else \
+        np.copyto(out, (e @ zf).reshape(shape))
+    return out
+
+
+class _Subspace(PriorBase):
     """The projection shared by the subspace priors."""
 
     def __init__(self, rank: int | None):
@@ -100,18 +158,10 @@ class _Subspace:
 
     def _coefficients(self, v: np.ndarray, rank: int) -> tuple[np.ndarray, np.ndarray]:
         """(E, z): the re-estimated basis (v's dtype) and z = Eᵀ v, shape (k, H, W)."""
+        v = np.ascontiguousarray(v)
         self.basis = leading_basis(v, rank, self.basis)
         e = self.basis.astype(v.dtype)
-        z = (e.T @ v.reshape(v.shape[0], -1)).reshape((rank,) + v.shape[1:])
-        return e, z
-
-    @staticmethod
-    def _expand(e: np.ndarray, z: np.ndarray, shape, out: np.ndarray | None) -> np.ndarray:
-        x = (e @ z.reshape(z.shape[0], -1)).reshape(shape)
-        if out is None:
-            return x
-        np.copyto(out, x)
-        return out
+        return e, project(e, v)
 
     def reset(self) -> None:
         self.basis = None
@@ -157,6 +207,12 @@ class SubspaceTV(_Subspace):
         self.threads = threads
         self._tv: TVProx | None = None
 
+    name = "subspace-tv"
+
+    def describe(self) -> dict:
+        return {"prior": self.name, "weight": self.weight, "rank": self.rank,
+                "tv_iters": self.tv_iters}
+
     def prox(self, v: np.ndarray, step: float, out: np.ndarray | None = None) -> np.ndarray:
         r""":math:`E\,\mathrm{prox}_{s\lambda\mathrm{TV}}(E^\top v)`, into ``out`` if given
         (``out`` may be ``v``)."""
@@ -166,7 +222,7 @@ class SubspaceTV(_Subspace):
             if self._tv is None or self._tv.shape != z.shape or self._tv.dtype != z.dtype:
                 self._tv = TVProx(z.shape, z.dtype, self.isotropic, self.threads)
             z = self._tv(z, step * self.weight, self.tv_iters, warm=True, out=z)
-        return self._expand(e, z, v.shape, out)
+        return expand(e, z, out)
 
     def value(self, x: np.ndarray) -> float:
         r""":math:`\lambda\,\mathrm{TV}(E^\top x)` with the basis of the last call (of ``x``
@@ -175,8 +231,9 @@ class SubspaceTV(_Subspace):
         x = np.asarray(x)
         rank = default_rank(x.shape[0]) if self.rank is None else self.rank
         basis = self.basis if self.basis is not None else leading_basis(x, rank)
-        e = basis.astype(x.dtype if x.dtype in (np.float32, np.float64) else np.float32)
-        z = (e.T @ x.reshape(x.shape[0], -1)).reshape((e.shape[1],) + x.shape[1:])
+        x = np.ascontiguousarray(x, dtype=x.dtype if x.dtype in (np.float32, np.float64)
+                                 else np.float32)
+        z = project(basis.astype(x.dtype), x)
         return self.weight * tv_norm(np.ascontiguousarray(z), self.isotropic)
 
     def reset(self) -> None:
@@ -184,3 +241,24 @@ class SubspaceTV(_Subspace):
         super().reset()
         if self._tv is not None:
             self._tv.reset()
+
+
+#: The subspace prior's weight relative to the TV weight the caller would use (its ``tau``,
+#: which follows the measurement's noise in kaleidospec): the coefficient images carry the same
+#: noise per pixel as the bands (the basis is orthonormal), so the same rule applies.
+WEIGHT_PER_TV_WEIGHT = 1.0
+
+
+def make_subspace_tv(ctx, *, rank: int | None = None, tv_iters: int = 2,
+                     warm_dual: bool = True, isotropic: bool = True) -> SubspaceTV:
+    """The registry's factory (:func:`recon.priors.make_prior` ``("subspace-tv")``): the
+    weight is ``ctx.weight`` (the caller's TV weight) times :data:`WEIGHT_PER_TV_WEIGHT`, or
+    the solver's default TV weight; ``warm_dual`` is accepted for the TV options' sake (the
+    dual is always kept: the basis changes little between calls)."""
+    from recon.priors.tv import default_weight
+
+    weight = ctx.weight
+    if weight is None:
+        weight = default_weight(ctx.solver) if ctx.solver is not None else default_weight("fista")
+    return SubspaceTV(weight * WEIGHT_PER_TV_WEIGHT, rank=rank, tv_iters=tv_iters,
+                      isotropic=isotropic, threads=ctx.threads)
