@@ -256,6 +256,24 @@ class IterationLoop:
         return time.perf_counter() - self.t0 - self.callback_seconds
 
 
+def gram_is_diagonal(op: LinearOperator, phi_inv: np.ndarray, dtype=np.float32,
+                     rng: np.random.Generator | None = None) -> bool:
+    r"""Whether :math:`HH^\top = \Phi` is diagonal (single-view CASSI), :math:`\Phi^{-1}` =
+    ``phi_inv`` (0 on rows that see nothing): one probe :math:`HH^\top u = \Phi u` for a
+    random :math:`u` drawn from ``rng`` (one forward/adjoint pair)."""
+    rng = np.random.default_rng(0) if rng is None else rng
+    u = rng.standard_normal(op.oshape).astype(dtype)
+    u *= (phi_inv > 0)
+    hhu = op.forward(op.adjoint(u)).astype(np.float64)
+    phi = np.zeros(phi_inv.shape, dtype=np.float64)
+    np.divide(1.0, phi_inv, out=phi, where=phi_inv > 0)
+    # Sums of squares without BLAS: OpenBLAS threads its float64 dot from a few ten thousand
+    # elements, and waking its threads on a busy machine costs more than the sum.
+    d = hhu - phi * u
+    err = math.sqrt(float(np.sum(d * d))) / max(math.sqrt(float(np.sum(hhu * hhu))), 1e-30)
+    return err < (1e-5 if np.dtype(dtype) == np.float32 else 1e-10)
+
+
 def preconditioned_norm_sq(op: LinearOperator, phi_inv: np.ndarray, n_iter: int = 15,
                            dtype=np.float32, seed: int = 0) -> float:
     r"""Estimate :math:`\nu = \|\Phi^{-1/2}H\|_2^2`, the top eigenvalue of :math:`H^\top\Phi^{-1}H`.
@@ -266,16 +284,7 @@ def preconditioned_norm_sq(op: LinearOperator, phi_inv: np.ndarray, n_iter: int 
     same voxel) a power iteration estimates :math:`\nu` (up to :math:`K`), times 1.02.
     """
     rng = np.random.default_rng(seed)
-    u = rng.standard_normal(op.oshape).astype(dtype)
-    u *= (phi_inv > 0)
-    hhu = op.forward(op.adjoint(u)).astype(np.float64)
-    phi = np.zeros(phi_inv.shape, dtype=np.float64)
-    np.divide(1.0, phi_inv, out=phi, where=phi_inv > 0)
-    # Sums of squares without BLAS: OpenBLAS threads its float64 dot from a few ten thousand
-    # elements and, on a busy machine, waking its threads took 8 ms per call (0.01 ms on one).
-    d = hhu - phi * u
-    err = math.sqrt(float(np.sum(d * d))) / max(math.sqrt(float(np.sum(hhu * hhu))), 1e-30)
-    if err < (1e-5 if np.dtype(dtype) == np.float32 else 1e-10):
+    if gram_is_diagonal(op, phi_inv, dtype, rng):
         return 1.0
     x = rng.standard_normal(op.ishape).astype(dtype)
     x /= np.linalg.norm(x)
