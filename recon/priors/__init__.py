@@ -158,12 +158,9 @@ def _check_options(name: str, factory, options: dict) -> None:
     if unknown:
         raise InputError(f"prior {name!r} has no option(s) {', '.join(unknown)}")
 
+
 # Priors of their own modules, registered here so that every name is known once recon.priors is.
 from recon.priors.subspace import make_subspace_tv  # noqa: E402
-from recon.priors.subspace_nlm import make_subspace_nlm  # noqa: E402
 
 register_prior("subspace-tv", make_subspace_tv,
                "k spectral basis vectors re-estimated from the iterate, TV on their images")
-register_prior("subspace-nlm", make_subspace_nlm,
-               "k spectral basis vectors re-estimated from the iterate, non-local means on "
-               "their images (plug-and-play)")
