@@ -5,7 +5,7 @@ same frame through the design's exact operator).
 centre, left, right, top, bottom, corners) out of the frame and solves
 
 .. math:: \hat f = \arg\min_f \tfrac12 \|s\,(g/e) - s\,H\,\mathrm{diag}(c)^{-1} f\|^2
-                    + \tau\,\mathrm{TV}(f),
+                    + \varphi(f),
 
 with :math:`H` the calibrated ``model``'s operator (:mod:`kaleidospec.models`), :math:`c` its
 radiometric gains, :math:`e` the frame's exposure factor (``radiance_scale`` in its sidecar),
@@ -15,7 +15,10 @@ the rows of :math:`sH` unit mean squared norm (:func:`unit_row_scale`), so that 
 rule (:func:`tv_weight`) serves every model, operator and design: :math:`\tau = \kappa\, n\,
 \bar\sigma`, with :math:`n` the views and :math:`\bar\sigma` the root-mean-square noise of
 :math:`s\,g/e`, from the sensor's photon-transfer curve (the calibration's
-:mod:`recon.calibration.noise`; the design's own sensor for the exact operator).
+:mod:`recon.calibration.noise`; the design's own sensor for the exact operator).  The prior
+:math:`\varphi` is named by ``prior`` (:mod:`recon.priors`): ``"tv"`` (the default) is
+:math:`\tau\,\mathrm{TV}` with that weight; another prior gets ``tau`` as its strength when
+given, else the noise :math:`\bar\sigma` and the views to set its own.
 
 :func:`reconstruct_oracle` solves the same problem with the design's exact operator
 (:func:`kaleidospec.instrument.oracle_operator`) on the ground-truth grid: the reference that
@@ -35,7 +38,7 @@ import numpy as np
 from recon.errors import InputError
 
 __all__ = ["DEFAULTS", "TAU_PER_VIEW", "TAU_PER_NOISE", "first_views", "tv_weight",
-           "unit_row_scale", "normalised", "measurement_noise", "design_noise", "solve_views",
+           "prior_weight", "unit_row_scale", "normalised", "measurement_noise", "design_noise", "solve_views",
            "calibrated_operator", "frame_measurements", "reconstruct_views",
            "reconstruct_oracle", "Reconstructor"]
 
@@ -47,14 +50,17 @@ __all__ = ["DEFAULTS", "TAU_PER_VIEW", "TAU_PER_NOISE", "first_views", "tv_weigh
 #: (``small``, one view: iteration 153 of the test design; ``paper``, five views: iteration
 #: 220).  See docs/figures.md, "Convergence of the default reconstruction".
 DEFAULTS = {"solver": "fista-tv", "iters": 400, "tol": 1e-3, "tau": None}
+#: The application's TV weight rule, in its unit-row-norm units (:func:`tv_weight`); the
+#: solvers' own defaults and the weight's valid range are :mod:`recon.priors.tv`'s.
 #: Default TV weight per solver (per view for the solvers whose data term sums over views) where
 #: the measurement's noise is not known: measured on the ``small`` design, see :func:`tv_weight`.
-TAU_PER_VIEW = {"fista-tv": 0.005, "twist": 0.005}
+TAU_PER_VIEW = {"fista-tv": 0.005, "twist": 0.005, "admm": 0.005}
 #: TV weight per view and per unit of the measurement's rms noise (unit-row-norm units), for the
 #: solvers whose data term is a least-squares fit: :math:`\tau = \kappa\, n\, \bar\sigma`.
 #: Chosen on a scene no reported figure uses (the colour wheel, ``small``, five views; see
 #: docs/figures.md): it gives ``small`` 0.5-0.8 and ``paper`` about 2 times the fixed weight.
-TAU_PER_NOISE = {"fista-tv": 0.15, "twist": 0.15}
+#: ADMM minimises the same objective as FISTA and TwIST, so it shares their rule.
+TAU_PER_NOISE = {"fista-tv": 0.15, "twist": 0.15, "admm": 0.15}
 
 
 def first_views(n_views) -> tuple[int, ...]:
@@ -90,6 +96,9 @@ def tv_weight(solver, tau, n_views, noise=None):
     (docs/figures.md).
     """
     if tau is not None:
+        from recon.priors.tv import check_weight
+
+        check_weight(tau, "the TV weight tau")
         return tau
     if noise is not None and solver in TAU_PER_NOISE:
         if not (math.isfinite(noise) and noise > 0):
@@ -144,12 +153,25 @@ def normalised(op, g):
     return ScaledOperator(op, s), (g * np.float32(s)).astype(g.dtype, copy=False)
 
 
+def prior_weight(prior, solver, tau, n_views, noise=None):
+    """The weight handed to ``prior``: for TV (``None`` or ``"tv"``) :func:`tv_weight`; for
+    another prior ``tau`` as given (None lets the prior set its strength from the noise)."""
+    if prior is None or prior == "tv":
+        return tv_weight(solver, tau, n_views, noise)
+    if tau is not None:
+        from recon.priors.tv import check_weight
+
+        check_weight(tau, f"the {prior} prior's weight")
+    return tau
+
+
 def solve_views(op, g, n_views: int, *, solver: str = DEFAULTS["solver"],
                 iters: int = DEFAULTS["iters"], tol=DEFAULTS["tol"], tau=None, x0=None, truth=None,
-                wavelengths=None, progress: bool = False, noise=None):
+                wavelengths=None, progress: bool = False, noise=None, prior=None):
     """Reconstruct measurements ``g`` of ``n_views`` views through ``op`` the way every path of
     the application does: operator and data brought to unit mean row norm (:func:`normalised`),
-    the TV weight from :func:`tv_weight` (``noise``: the rms noise of ``g``, in its units, e.g.
+    the prior ``prior`` (a :data:`recon.priors.PRIORS` name; None: ``"tv"``) with the weight
+    from :func:`prior_weight` (``noise``: the rms noise of ``g``, in its units, e.g.
     :func:`measurement_noise`), then :func:`recon.app.reconstruct` (at most ``iters``
     iterations, fewer once the relative change falls below ``tol``; ``None`` runs them all).
     Adds ``seconds`` and ``noise`` (in the unit-row-norm units)."""
@@ -158,9 +180,10 @@ def solve_views(op, g, n_views: int, *, solver: str = DEFAULTS["solver"],
     op, g = normalised(op, g)
     noise = None if noise is None else float(noise) * op.scale
     t0 = time.perf_counter()
-    tau = tv_weight(solver, tau, n_views, noise)
+    tau = prior_weight(prior, solver, tau, n_views, noise)
     cube, info = reconstruct(g, op, solver=solver, iters=iters, tol=tol, tau=tau, x0=x0,
-                             truth=truth, wavelengths=wavelengths, progress=progress)
+                             truth=truth, wavelengths=wavelengths, progress=progress,
+                             prior=prior, noise=noise)
     info["seconds"] = time.perf_counter() - t0
     info["noise"] = noise
     return cube, info
@@ -201,7 +224,7 @@ def frame_measurements(frame, metadata, cal, view_ids) -> np.ndarray:
 def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = DEFAULTS["solver"],
                       iters: int = DEFAULTS["iters"], tol=DEFAULTS["tol"], tau=None, x0=None,
                       truth=None, progress: bool = False, design=None,
-                      model: str | None = None):
+                      model: str | None = None, prior: str | None = None):
     """Reconstruct from the first ``n_views`` views of a raw frame with a calibration.
 
     Parameters
@@ -215,8 +238,8 @@ def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = DEFAULTS["
     n_views : int
         1..9, views taken in the order centre, left, right, top, bottom, corners; all must be
         in the calibration.
-    solver, iters, tau, x0, progress
-        As for :func:`recon.app.reconstruct`.
+    solver, iters, tau, x0, progress, prior
+        As for :func:`recon.app.reconstruct` (``tau`` and ``prior``: :func:`solve_views`).
     tol : float or None
         Stop once the relative change of the cube falls below it (:func:`solve_views`).
     truth : (v, v, L) or (H, W, L) array, optional
@@ -249,7 +272,7 @@ def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = DEFAULTS["
     cube, info = solve_views(calibrated_operator(cal, ids, model), g, len(ids), solver=solver,
                              iters=iters, tol=tol, tau=tau, x0=x0, truth=tg,
                              wavelengths=cal.wavelengths, progress=progress,
-                             noise=measurement_noise(g, metadata, cal.noise))
+                             noise=measurement_noise(g, metadata, cal.noise), prior=prior)
     info["view_ids"] = list(ids)
     if tg is not None:
         info["truth_grid"] = tg
@@ -259,7 +282,8 @@ def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = DEFAULTS["
 # ------------------------------------------------------------------------------- exact operator
 def reconstruct_oracle(frame, metadata, design, n_views, *, solver: str = DEFAULTS["solver"],
                        iters: int = DEFAULTS["iters"], tol=DEFAULTS["tol"], tau=None,
-                       truth=None, progress: bool = False, inversion: bool = True, op=None):
+                       truth=None, progress: bool = False, inversion: bool = True, op=None,
+                       prior: str | None = None):
     """Reconstruct a frame with the design's exact operator
     (:func:`kaleidospec.instrument.oracle_operator`, or ``op``), on the ground-truth grid.
     Returns ``(cube (v, v, L), info)``."""
@@ -272,7 +296,7 @@ def reconstruct_oracle(frame, metadata, design, n_views, *, solver: str = DEFAUL
         op = oracle_operator(design, n_views, inversion=inversion)
     return solve_views(op, g, n_views, solver=solver, iters=iters, tol=tol, tau=tau,
                        truth=truth, wavelengths=design.wavelengths, progress=progress,
-                       noise=measurement_noise(g, metadata, design_noise(design)))
+                       noise=measurement_noise(g, metadata, design_noise(design)), prior=prior)
 
 
 def check_oracle_solver(solver: str) -> str:
@@ -312,7 +336,10 @@ class Reconstructor:
         A :mod:`recon.solvers` name.
     tau : float, optional
         TV weight (:func:`tv_weight`'s default if None: with ``noise``, set by the first
-        frame measured and kept for the sequence).
+        frame measured and kept for the sequence); another prior's strength (None: the prior
+        sets it from the first frame's noise).
+    prior : str, optional
+        A :data:`recon.priors.PRIORS` name (None: ``"tv"``).
     threads : int, optional
         Threads of the TV prox (GAP-TV and the temporal variant).
     to_grid : callable, optional
@@ -325,8 +352,9 @@ class Reconstructor:
 
     def __init__(self, op, measure, *, solver: str = "gap-tv", tau: float | None = None,
                  threads: int | None = None, to_grid=None, offset=None, kind: str = "",
-                 noise=None):
+                 noise=None, prior: str | None = None):
         from recon.operators import ScaledOperator
+        from recon.priors import check_prior_name
 
         # The scaling and TV weight of solve_views, so that a video frame is reconstructed
         # exactly as `kaleidospec run` reconstructs a still.
@@ -334,9 +362,15 @@ class Reconstructor:
         self.op = ScaledOperator(op, scale)
         self._raw = measure
         self.solver = solver
+        self.prior = check_prior_name("tv" if prior is None else prior)
         self._noise_model = noise
+        #: The measurement's rms noise (unit-row-norm units), set by the first frame measured.
+        self.noise = None
+        self._prior = None
         self.tau = None
-        if tau is not None or noise is None or solver not in TAU_PER_NOISE:
+        if self.prior != "tv":
+            self.tau = prior_weight(self.prior, solver, tau, op.oshape[0])
+        elif tau is not None or noise is None or solver not in TAU_PER_NOISE:
             self.tau = tv_weight(solver, tau, op.oshape[0])
         self.threads = threads
         self._to_grid = to_grid
@@ -373,9 +407,10 @@ class Reconstructor:
         """The (K, Hv, Wm) measurement in the operator's units (the first one measured sets
         the TV weight where it follows the noise)."""
         g = self._raw(frame, metadata)
-        if self.tau is None:
-            noise = measurement_noise(g, metadata, self._noise_model) * self.op.scale
-            self.tau = tv_weight(self.solver, None, self.op.oshape[0], noise)
+        if self.noise is None and self._noise_model is not None:
+            self.noise = measurement_noise(g, metadata, self._noise_model) * self.op.scale
+        if self.tau is None and self.prior == "tv":
+            self.tau = tv_weight(self.solver, None, self.op.oshape[0], self.noise)
         return g * np.float32(self.op.scale)
 
     def truth_on_grid(self, truth, metadata) -> np.ndarray:
@@ -389,6 +424,19 @@ class Reconstructor:
     def grid_offset(self, metadata) -> tuple[float, float]:
         """(oy, ox): reconstruction pixel (y, x) is truth pixel (y + oy, x + ox)."""
         return (0.0, 0.0) if self._offset is None else self._offset(metadata)
+
+    def prior_options(self) -> dict:
+        """The solver's prior keywords: ``tau`` for TV (the solvers build it), else the prior
+        (built on first use, with the first frame's noise)."""
+        if self.prior == "tv":
+            return {"tau": self.tau}
+        if self._prior is None:
+            from recon.priors import make_prior
+
+            self._prior = make_prior(self.prior, shape=self.op.ishape, dtype=np.float32,
+                                     weight=self.tau, solver=self.solver, noise=self.noise,
+                                     n_views=self.op.oshape[0], threads=self.threads)
+        return {"prior": self._prior}
 
     def solver_options(self) -> dict:
         """GAP-TV's step (computed on first use) and prox threads."""
@@ -412,7 +460,7 @@ class Reconstructor:
         ``x0`` (H, W, L) warm-starts the solver; ``mu`` > 0 (with ``x0``) adds the temporal
         term :math:`\mu\lVert f - x_0\rVert_1` (GAP-TV only, :mod:`recon.temporal`).
         """
-        if self.tau is None:
+        if self.tau is None and self.prior == "tv":
             raise InputError("the TV weight follows the noise: measure a frame "
                              "(Reconstructor.measurement) before solving, or give tau")
         t0 = time.perf_counter()
@@ -425,16 +473,16 @@ class Reconstructor:
             if self.solver != "gap-tv":
                 raise InputError("the temporal TV term is implemented for gap-tv only")
             res = gap_tv_temporal(self.op, g, ref=x0_bm, mu=float(mu), iters=int(iters),
-                                  tau=self.tau, x0=x0_bm, callback=callback,
+                                  x0=x0_bm, callback=callback, **self.prior_options(),
                                   **self.solver_options())
         else:
             from recon.solvers import solve
 
             mu = 0.0
-            res = solve(self.solver, self.op, g, iters=int(iters), tau=self.tau, x0=x0_bm,
-                        callback=callback, **self.solver_options())
+            res = solve(self.solver, self.op, g, iters=int(iters), x0=x0_bm,
+                        callback=callback, **self.prior_options(), **self.solver_options())
         cube = np.ascontiguousarray(np.moveaxis(res.x, 0, 2), dtype=np.float32)
         if not np.all(np.isfinite(cube)):
             raise RuntimeError(f"solver {self.solver!r} diverged (non-finite values)")
         return cube, {"iters": int(res.iterations), "wall_seconds": time.perf_counter() - t0,
-                      "tau": self.tau, "mu": float(mu)}
+                      "tau": self.tau, "mu": float(mu), "prior": self.prior}

@@ -45,7 +45,8 @@ def parse_views(spec) -> tuple[int, ...]:
 def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS["solver"],
         iters: int = DEFAULTS["iters"], tol=DEFAULTS["tol"], tau=None, seed: int = 0,
         progress: bool = True, cache_dir=None, oracle: bool = True, figures: bool = True,
-        raw=None, widen: bool = True, log=None, model: str | None = None) -> dict:
+        raw=None, widen: bool = True, log=None, model: str | None = None,
+        prior: str = "tv") -> dict:
     """Render ``scene``, calibrate (cached), reconstruct for every view count, write a report.
 
     Everything is written into a fresh temporary folder beside ``out_dir`` that replaces
@@ -62,10 +63,10 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
     out_dir : path
     views : sequence of int
         View counts (1..9).
-    solver, iters, tol, tau, seed
+    solver, iters, tol, tau, prior, seed
         Reconstruction settings (:func:`kaleidospec.reconstruct.solve_views`: at most ``iters``
-        iterations, fewer once the cube's relative change falls below ``tol``) and the
-        sensor-noise seed.
+        iterations, fewer once the cube's relative change falls below ``tol``; the prior a
+        :data:`recon.priors.PRIORS` name, ``tau`` its weight) and the sensor-noise seed.
     oracle : bool
         Also reconstruct with the exact operator (for the "within 1 dB" comparison).
     figures : bool
@@ -96,9 +97,11 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
     from recon.io.atomic import atomic_dir, check_output, output_parents
     from recon.io.cubes import write_cube
     from recon.io.raw import write_raw
+    from recon.priors import check_prior_name
     from recon.report import band_montage, spectra_plot, srgb_image, write_png
 
     counts = parse_views(views)
+    check_prior_name(prior)
     if oracle:
         check_oracle_solver(solver)
     if widen:
@@ -155,8 +158,8 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
         write_png(tmp / "srgb_truth.png", rgb_truth)
         result = {
             "scene": str(scene), "design": design.to_dict(), "design_hash": design.hash,
-            "wavelengths_nm": [float(x) for x in wl], "solver": solver, "iters": int(iters),
-            "tol": tol, "tau": tau, "seed": int(seed), "model": model,
+            "wavelengths_nm": [float(x) for x in wl], "solver": solver, "prior": prior,
+            "iters": int(iters), "tol": tol, "tau": tau, "seed": int(seed), "model": model,
             "cube_shape": list(cube_grid(cal, model)) + [cal.n_bands],
             "calibration": {"cached": cached, "seconds": cal_seconds,
                             "view_ids": list(cal.view_ids),
@@ -171,7 +174,7 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
             for n in counts:
                 cube, info = reconstruct_views(frame, meta, cal, n, solver=solver, iters=iters,
                                                tol=tol, tau=tau, truth=truths[n], design=design,
-                                               model=model, progress=progress)
+                                               model=model, progress=progress, prior=prior)
                 bar.update()
                 cubes[n] = cube
                 write_cube(tmp / f"cube_{n}views.exr", cube, wl)
@@ -183,7 +186,8 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
                 if oracle:
                     ocube, oinfo = reconstruct_oracle(frame, meta, design, n, solver=solver,
                                                       iters=iters, tol=tol, tau=tau,
-                                                      truth=truth, progress=progress)
+                                                      truth=truth, progress=progress,
+                                                      prior=prior)
                     bar.update()
                     result["oracle"][str(n)] = evaluate.scores(oinfo, n)
         finally:

@@ -187,7 +187,7 @@ def reconstruct_segment(out_dir, start: int, stop: int, settings: dict, on_frame
     settings : dict
         ``operator`` (``calibrated``, default, or ``oracle``), ``calibration`` (path) or
         ``design`` (a ``Design.to_dict()``, for the oracle), ``views``, ``solver``, ``iters``,
-        ``cold_iters``, ``tau``, ``mu``, ``threads``, ``animation`` (the scene's
+        ``cold_iters``, ``tau``, ``prior``, ``mu``, ``threads``, ``animation`` (the scene's
         ``describe()``, for sector masks), ``wavelengths``.
     on_frame : callable, optional
         Called with the frame index after each frame is written (progress in this process).
@@ -211,7 +211,8 @@ def reconstruct_segment(out_dir, start: int, stop: int, settings: dict, on_frame
     rec = _segment_reconstructor(settings)
     if rec.tau is None:
         # A weight that follows the noise is the first frame's in every segment, so that the
-        # sequence is solved with one weight whichever segment a frame falls in.
+        # sequence is solved with one weight whichever segment a frame falls in (a prior
+        # other than TV sets its strength from that frame's noise too).
         rec.measurement(*read_raw(lay.raw(0)))
     wl = np.asarray(settings["wavelengths"], np.float64)
     masker = sector_masker(settings.get("animation"))
@@ -241,7 +242,8 @@ def reconstruct_segment(out_dir, start: int, stop: int, settings: dict, on_frame
         rec_info = {"frame": i, "time_s": meta.get("time_s"), "warm": warm,
                     "iters": int(info["iters"]), "solve_seconds": float(info["wall_seconds"]),
                     "segment": [start, stop], "views": int(settings["views"]),
-                    "tau": float(info["tau"]), "mu": float(info.get("mu", 0.0)), **m}
+                    "tau": None if info["tau"] is None else float(info["tau"]),
+                    "prior": info.get("prior", "tv"), "mu": float(info.get("mu", 0.0)), **m}
         write_json(lay.metrics(i), rec_info, sort_keys=True)
         prev, prev_i = cube, i
         summary["done"] += 1
@@ -256,7 +258,7 @@ def _segment_reconstructor(settings: dict):
     from kaleidospec.reconstruct import Reconstructor
 
     kw = {"solver": settings["solver"], "tau": settings.get("tau"),
-          "threads": settings.get("threads")}
+          "threads": settings.get("threads"), "prior": settings.get("prior", "tv")}
     if settings.get("operator", "calibrated") == "oracle":
         from kaleidospec.instrument import Design
 
@@ -448,6 +450,8 @@ def _check_manifest(lay: VideoLayout, config: dict) -> dict | None:
         return None
     old = read_json_object(lay.manifest)
     prev = old.get("config", {})
+    # A manifest from before priors were named had the TV prior.
+    prev = {**prev, "prior": prev.get("prior", "tv")} if "prior" in config else prev
     diff = sorted(k for k in set(prev) | set(config) if prev.get(k) != config.get(k))
     if diff:
         raise InputError(f"{lay.root} holds a video made with other settings (differs in "
@@ -460,6 +464,7 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
               solver: str | None = None, iters: int = 15, cold_iters: int = 50,
               tau: float | None = None, temporal: float = 0.0, seed: int = 0,
               noise: bool = True, subframes: int = 1, scene_params: dict | None = None,
+              prior: str = "tv",
               segment_frames: int | None = None, workers: int | None = None,
               scheduler: str | None = None, video_format: str = "gif",
               operator: str = "calibrated", progress: bool = True, cache_dir=None) -> dict:
@@ -486,9 +491,11 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
         measurement row with :math:`\mathrm{diag}(HH^\top)^{-1}`, exact only when rows share
         no voxel, as in the shifted model; the exact operator's pixels share texels through
         their footprints, the smear and the blur, and GAP-TV diverges on it), iterations of
-        warm-started and of cold-started frames, TV weight.
+        warm-started and of cold-started frames, TV weight (another prior's strength).
+    prior : str
+        A :data:`recon.priors.PRIORS` name (default ``"tv"``).
     temporal : float
-        Weight μ of the temporal term (0: off).
+        Weight μ of the temporal term (0: off), added to the prior.
     seed, noise : sensor noise.
     subframes : int
         Midpoint-rule sub-frames per exposure (motion blur; 1 ignores it).
@@ -517,8 +524,14 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
     from kaleidospec.report import write_json
     from recon.app import solver_names
 
+    from recon.priors import check_prior_name
+    from recon.priors.tv import check_weight
+
     if operator not in ("calibrated", "oracle"):
         raise InputError(f"--operator must be calibrated or oracle, got {operator!r}")
+    check_prior_name(prior)
+    if tau is not None:
+        check_weight(tau, "--tau")
     d = instrument.get_design(design, overrides)
     if solver is None:
         # A calibration that carries the lens's PSF blurs its rows together, like the exact
@@ -561,8 +574,8 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
               "overrides": {k: str(val) for k, val in (overrides or {}).items()},
               "design_hash": d.hash, "views": int(views), "solver": solver,
               "iters": int(iters), "cold_iters": int(cold_iters), "tau": tau,
-              "temporal": float(temporal), "seed": int(seed), "noise": bool(noise),
-              "operator": operator}
+              "prior": prior, "temporal": float(temporal), "seed": int(seed),
+              "noise": bool(noise), "operator": operator}
     old = _check_manifest(lay, config)
     lay.make()
 
@@ -592,7 +605,7 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
 
     settings = {"operator": operator, "views": int(views), "solver": solver,
                 "iters": int(iters), "cold_iters": int(cold_iters), "tau": tau,
-                "mu": float(temporal), "animation": anim.describe(),
+                "prior": prior, "mu": float(temporal), "animation": anim.describe(),
                 "wavelengths": [float(x) for x in anim.wavelengths]}
     if operator == "oracle":
         settings["design"] = d.to_dict()

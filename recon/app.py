@@ -6,13 +6,14 @@ experiments, notebooks) speak (H, W, L) cubes; operators and solvers work band-m
 (``x0``, ``truth``) and once on the way out, validates shapes, runs a solver from
 :mod:`recon.solvers` and reports timing and, given a reference, quality metrics.
 
-The problem solved is the paper's (Eq. 6–7)
+The problem solved is
 
 .. math::
 
-    \hat f = \arg\min_f \tfrac12 \lVert g - H f\rVert_2^2 + \tau\, \mathrm{TV}(f)
+    \hat f = \arg\min_f \tfrac12 \lVert g - H f\rVert_2^2 + \varphi(f)
 
-with TV spatial and summed over bands.
+with the prior :math:`\varphi` named by ``prior`` (:mod:`recon.priors`); the default ``"tv"``
+is the paper's (Eq. 6–7), :math:`\tau\,\mathrm{TV}(f)` with TV spatial and summed over bands.
 
 Negative measurements.  A CASSI frame is a non-negative intensity, but after dark-frame
 subtraction read noise leaves some pixels slightly below zero, and those must be accepted as
@@ -37,7 +38,7 @@ import numpy as np
 from recon.errors import InputError
 
 __all__ = ["reconstruct", "reconstruct_standard", "standard_n_bands", "default_tau", "solver_names",
-           "check_measurement_sign", "NegativeMeasurementWarning", "NEGATIVE_WARN_FRACTION"]
+           "prior_names", "build_prior", "check_measurement_sign", "NegativeMeasurementWarning", "NEGATIVE_WARN_FRACTION"]
 
 #: Negative values below ``-NEGATIVE_WARN_FRACTION * max(g)`` are beyond read noise (warning).
 NEGATIVE_WARN_FRACTION = 0.1
@@ -84,6 +85,36 @@ def solver_names() -> tuple[str, ...]:
     from recon.solvers import SOLVERS
 
     return tuple(SOLVERS)
+
+
+def prior_names() -> tuple[str, ...]:
+    """The prior names :func:`recon.priors.make_prior` knows."""
+    from recon.priors import prior_names as names
+
+    return names()
+
+
+def build_prior(prior, op, dtype, solver: str, tau=None, noise=None, threads=None):
+    r"""The solver keywords for ``prior``: ``{"tau": ...}`` for the TV prior (the solvers build
+    it, so its arithmetic is theirs), else ``{"prior": <Prior>}`` built by
+    :func:`recon.priors.make_prior` with ``tau`` as its weight (None: the prior's own rule,
+    which may follow ``noise``, the measurement's rms noise).  A :class:`~recon.priors.Prior`
+    object is passed through.  Returns ``(keywords, name)``.
+    """
+    from recon.priors import check_prior_name, make_prior
+    from recon.priors.tv import check_weight
+
+    if tau is not None:
+        tau = check_weight(tau, "tau")
+    if prior is None or prior == "tv":
+        return {"tau": default_tau(solver) if tau is None else tau}, "tv"
+    if not isinstance(prior, str):
+        if tau is not None:
+            raise InputError("tau sets the TV prior's weight; with a prior object, set it there")
+        return {"prior": prior}, getattr(prior, "name", type(prior).__name__)
+    check_prior_name(prior)
+    return {"prior": make_prior(prior, shape=op.ishape, dtype=dtype, weight=tau, solver=solver,
+                                noise=noise, n_views=op.oshape[0], threads=threads)}, prior
 
 
 def default_tau(solver: str) -> float:
@@ -136,6 +167,8 @@ def reconstruct(
     solver: str = "gap-tv",
     iters: int = 50,
     tau: float | None = None,
+    prior=None,
+    noise: float | None = None,
     x0=None,
     truth=None,
     wavelengths=None,
@@ -150,12 +183,17 @@ def reconstruct(
         The frame(s) :math:`g`.
     op : recon.operators.LinearOperator
         Forward model with ``ishape`` (L, H, W) and ``oshape`` (K, Hv, Wm).
-    solver : {"gap-tv", "twist", "admm-tv", ...}
+    solver : {"gap-tv", "fista-tv", "twist", "admm"}
         A name known to :func:`recon.solvers.solve`.
     iters : int
         Outer iterations.
     tau : float, optional
-        TV weight :math:`\tau`; None uses the solver's default (:func:`default_tau`).
+        The prior's weight: for TV :math:`\tau`, None using the solver's default
+        (:func:`default_tau`); for another prior its strength, None letting the prior choose.
+    prior : str or Prior, optional
+        A name of :data:`recon.priors.PRIORS` (default ``"tv"``) or a prior object.
+    noise : float, optional
+        The measurement's rms noise, for priors whose strength follows it.
     x0 : array (H, W, L), optional
         Initial guess (the solver's default, usually :math:`H^\top g`, otherwise).
     truth : array (H, W, L), optional
@@ -172,7 +210,8 @@ def reconstruct(
     ------
     InputError
         Shapes, dtypes (bool, complex, object, strings), NaN/Inf, a measurement that is not an
-        intensity (see the module notes), unknown solver or options, an all-zero operator.
+        intensity (see the module notes), unknown solver, prior or options, an all-zero
+        operator.
 
     Warns
     -----
@@ -183,14 +222,17 @@ def reconstruct(
     -------
     cube : float32 array (H, W, L), C-contiguous
     info : dict
-        ``solver``, ``iters`` (done), ``tau``, ``seconds`` (wall time of the solve), ``converged``,
+        ``solver``, ``prior`` (its name), ``iters`` (done), ``tau`` (the TV weight, or the
+        weight given to another prior), ``seconds`` (wall time of the solve), ``converged``,
         ``objective`` (list, may be empty), ``solver_info``; with ``truth`` also ``metrics`` and
         ``psnr_history``.
     """
-    from recon.solvers import solve
+    from recon.solvers import SOLVERS, solve
 
     if not hasattr(op, "ishape") or not hasattr(op, "oshape") or len(op.ishape) != 3:
         raise InputError("op must be a recon operator on (L, H, W) cubes")
+    if solver not in SOLVERS:
+        raise InputError(f"unknown solver {solver!r}; choose one of {', '.join(SOLVERS)}")
     g = _as_measurement(measurement, op.oshape)
     dtype = g.dtype
     x0_bm = None if x0 is None else _to_band_major(x0, op.ishape, "x0", dtype)
@@ -221,7 +263,9 @@ def reconstruct(
 
     kwargs = dict(solver_options)
     kwargs["iters"] = iters
-    kwargs["tau"] = default_tau(solver) if tau is None else tau
+    prior_kw, prior_name = build_prior(prior, op, dtype, solver, tau, noise,
+                                       solver_options.get("threads"))
+    kwargs.update(prior_kw)
     if x0_bm is not None:
         kwargs["x0"] = x0_bm
     if truth_bm is not None or bar is not None:
@@ -242,8 +286,9 @@ def reconstruct(
         raise RuntimeError(f"solver {solver!r} diverged (non-finite values) on {op!r}")
     info = {
         "solver": solver,
+        "prior": prior_name,
         "iters": int(getattr(res, "iterations", iters)),
-        "tau": kwargs["tau"],
+        "tau": kwargs.get("tau", tau),
         "seconds": float(getattr(res, "seconds", wall)),
         "wall_seconds": wall,
         "converged": bool(getattr(res, "converged", False)),

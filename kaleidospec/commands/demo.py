@@ -14,6 +14,8 @@ from pathlib import Path
 
 import typer
 
+from kaleidospec.commands.prior_option import check_prior, prior_option
+
 DEFAULT_SCENE = "natural"
 DEFAULT_VIEWS = "1,2,3,5"
 DEFAULT_MODEL = "footprint"
@@ -24,6 +26,7 @@ def demo(
     model: str = typer.Option(DEFAULT_MODEL, "--model", help="Calibrated forward model: "
                               "footprint (the default here) or shifted (see kaleidospec run "
                               "--help)."),
+    prior: str = prior_option(),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress bars."),
 ) -> None:
     """Render the natural scene with the small design, calibrate, reconstruct, report."""
@@ -32,7 +35,8 @@ def demo(
     from kaleidospec.run import parse_views, run
 
     check_model(model)
+    check_prior(prior)
     d = design_for_views(get_design("small"), 5)
     run(DEFAULT_SCENE, d, out, views=parse_views(DEFAULT_VIEWS), progress=progress,
-        oracle=False, log=typer.echo, model=model)
+        oracle=False, log=typer.echo, model=model, prior=prior)
     typer.echo(f"wrote {out}/")

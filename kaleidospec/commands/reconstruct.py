@@ -30,6 +30,8 @@ from typing import Optional
 
 import typer
 
+from kaleidospec.commands.prior_option import check_prior, prior_option
+
 OUT_SUFFIXES = (".npz", ".npy", ".exr", ".mat")
 #: Picture files written beside the cube ``<stem><suffix>``: name suffix per picture.
 PICTURES = {"srgb": "_srgb.png", "bands": "_bands.png", "spectra": "_spectra.png"}
@@ -120,9 +122,10 @@ def reconstruct(
     step: int = typer.Option(..., "--step", help="Dispersion step in pixels per band."),
     out: Path = typer.Option(..., "--out", "-o", help="Output cube (.npz, .npy, .exr or .mat); missing folders are created."),
     bands: Optional[int] = typer.Option(None, "--bands", help="Number of bands (default: what the widths imply, (Wm − W)/step + 1, or a 3-D mask's)."),
-    solver: str = typer.Option("gap-tv", "--solver", help="Solver: gap-tv (fastest on clean data), fista-tv (robust to noise) or twist (the paper's)."),
+    solver: str = typer.Option("gap-tv", "--solver", help="Solver: gap-tv (fastest on clean data), fista-tv (robust to noise), twist (the paper's) or admm (for plug-and-play priors)."),
     iters: int = typer.Option(50, "--iters", help="Iterations."),
-    tau: Optional[float] = typer.Option(None, "--tau", help="TV weight (default: the solver's own)."),
+    tau: Optional[float] = typer.Option(None, "--tau", help="TV weight, >= 0 (default: the solver's own); another prior's strength (default: the prior's own)."),
+    prior: str = prior_option(),
     truth: Optional[Path] = typer.Option(None, "--truth", help="Reference cube (H, W, L) for PSNR/SSIM/SAM and the spectra picture."),
     wavelengths: str = typer.Option("infer", "--wavelengths", help="START:STOP:COUNT in nm, or 'infer' (from --truth)."),
     measurement_key: Optional[str] = typer.Option(None, "--key", "--measurement-key", help="Variable/channel name of the measurement (default: meas_real, meas, measurement, … or the file's only 2-D array)."),
@@ -142,6 +145,7 @@ def reconstruct(
     from recon.io.arrays import MASK_KEYS, MEASUREMENT_KEYS, read_named_array
     from recon.io.atomic import atomic_path, check_output, output_parents
     from recon.io.cubes import read_cube, standard_wavelengths, write_cube
+    from recon.priors.tv import check_weight
 
     def one_line_warning(message, category, filename, lineno, file=None, line=None):
         print(f"kaleidospec: warning: {message}", file=sys.stderr)
@@ -149,6 +153,9 @@ def reconstruct(
     # -- everything that can be checked before the (long) solve --------------------------------
     if solver not in solver_names():
         raise InputError(f"--solver must be one of {', '.join(solver_names())}, got {solver!r}")
+    check_prior(prior)
+    if tau is not None:
+        check_weight(tau, "--tau")
     if iters < 1:
         raise InputError(f"--iters must be >= 1, got {iters}")
     if step < 1:
@@ -198,8 +205,8 @@ def reconstruct(
     with warnings.catch_warnings():
         warnings.simplefilter("always", NegativeMeasurementWarning)
         warnings.showwarning = one_line_warning
-        settings = dict(solver=solver, iters=iters, tau=tau, truth=truth_cube, wavelengths=wl,
-                        progress=progress)
+        settings = dict(solver=solver, iters=iters, tau=tau, prior=prior, truth=truth_cube,
+                        wavelengths=wl, progress=progress)
         if m.ndim == 2:
             cube, info = reconstruct_standard(g, m, step, n_bands, **settings)
         else:
@@ -219,7 +226,7 @@ def reconstruct(
     except OSError as err:  # disk full, or the folder changed during the solve
         raise InputError(f"{out}: cannot write ({err.strerror or err})") from None
 
-    print(f"{solver}: {info['iters']} iterations on {cube.shape[0]}x{cube.shape[1]}x{cube.shape[2]} "
+    print(f"{solver}, prior {info['prior']}: {info['iters']} iterations on {cube.shape[0]}x{cube.shape[1]}x{cube.shape[2]} "
           f"in {info['wall_seconds']:.2f} s (wall)")
     if "metrics" in info:
         mt = info["metrics"]

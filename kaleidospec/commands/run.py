@@ -14,6 +14,8 @@ from typing import List, Optional
 
 import typer
 
+from kaleidospec.commands.prior_option import check_prior, prior_option
+
 
 def run(
     scene: str = typer.Option(..., "--scene", help="Built-in scene name or a cube file."),
@@ -29,9 +31,11 @@ def run(
     tol: float = typer.Option(1e-3, "--tol", help="Stop once the relative change "
                               "of the cube per iteration falls below this (0: run all "
                               "--iters)."),
-    tau: Optional[float] = typer.Option(None, "--tau", help="TV weight (default: "
-                                        "fista-tv and twist follow the noise the calibration "
-                                        "measured; gap-tv its own)."),
+    tau: Optional[float] = typer.Option(None, "--tau", help="TV weight, >= 0 (default: "
+                                        "fista-tv, twist and admm follow the noise the "
+                                        "calibration measured; gap-tv its own); another "
+                                        "prior's strength (default: the prior's own)."),
+    prior: str = prior_option(),
     seed: int = typer.Option(0, "--seed", help="Sensor-noise seed of the scene frame."),
     raw: Optional[Path] = typer.Option(None, "--raw", help="Reconstruct this raw frame (.exr "
                                        "+ sidecar) instead of rendering; the scene gives the "
@@ -50,6 +54,7 @@ def run(
     from kaleidospec.run import parse_views, run as run_scene
     from recon.app import solver_names
     from recon.errors import InputError
+    from recon.priors.tv import check_weight
 
     if solver not in solver_names():
         raise InputError(f"--solver must be one of {', '.join(solver_names())}, got {solver!r}")
@@ -58,8 +63,9 @@ def run(
     if not tol >= 0:
         raise InputError(f"--tol must be >= 0, got {tol}")
     check_model(model)
-    if tau is not None and not tau >= 0:
-        raise InputError(f"--tau must be >= 0, got {tau}")
+    check_prior(prior)
+    if tau is not None:
+        check_weight(tau, "--tau")
     counts = parse_views(views)
     d = get_design(design, parse_overrides(set_))
     raw_frame = None
@@ -74,5 +80,5 @@ def run(
         d = design_for_views(d, max(counts))
     run_scene(scene, d, out, views=counts, solver=solver, iters=iters, tol=tol or None,
               tau=tau, seed=seed, progress=progress, oracle=oracle and raw is None,
-              raw=raw_frame, widen=raw is None, log=typer.echo, model=model)
+              raw=raw_frame, widen=raw is None, log=typer.echo, model=model, prior=prior)
     typer.echo(f"wrote {out}/")

@@ -21,14 +21,15 @@ def _run(kind: str, start, stop, step, design, set_, scene, views, solver, iters
     from kaleidospec.sweep import SweepSettings, run_sweep, sweep_values
     from recon.errors import InputError
     from recon.io.atomic import check_output, output_parents
+    from recon.priors.tv import check_weight
 
     d0, d1, ds = DEFAULT_RANGES[kind]
     values = sweep_values(d0 if start is None else start, d1 if stop is None else stop,
                           ds if step is None else step)
     if workers is not None and workers < 1:
         raise InputError(f"--workers must be at least 1, got {workers}")
-    if tau is not None and not tau > 0:
-        raise InputError(f"--tau must be positive, got {tau}")
+    if tau is not None:
+        check_weight(tau, "--tau")
     given = {k: v for k, v in (("solver", solver), ("iters", iters)) if v is not None}
     settings = SweepSettings(kind=kind, design=design, overrides=parse_overrides(set_),
                              scene=scene, n_views=views, tau=tau, seed=seed, spp=spp,

@@ -10,6 +10,8 @@ from typing import List, Optional
 
 import typer
 
+from kaleidospec.commands.prior_option import check_prior, prior_option
+
 
 def _parse_params(items) -> dict:
     """``name=value`` pairs; values parsed as JSON when they can be (numbers, lists), else
@@ -51,8 +53,11 @@ def video(
     solver: Optional[str] = typer.Option(None, "--solver", help="gap-tv (default), twist or "
                                          "fista-tv (the default with --operator oracle, or "
                                          "where the lens blurs over a pixel, e.g. paper)."),
-    tau: Optional[float] = typer.Option(None, "--tau", help="TV weight (default: "
-                                        "follows the first frame's noise; gap-tv its own)."),
+    tau: Optional[float] = typer.Option(None, "--tau", help="TV weight, >= 0 (default: "
+                                        "follows the first frame's noise; gap-tv its own); "
+                                        "another prior's strength (default: the prior's "
+                                        "own)."),
+    prior: str = prior_option(),
     temporal: float = typer.Option(0.0, "--temporal", help="Weight of the temporal TV term "
                                    "|f_t - f_(t-1)|_1 (0: off; gap-tv only)."),
     speed: Optional[float] = typer.Option(None, "--speed", help="Colour wheel speed, deg/s "
@@ -87,6 +92,11 @@ def video(
 
     if frames is not None and frames < 1:
         raise InputError(f"--frames must be >= 1, got {frames}")
+    check_prior(prior)
+    if tau is not None:
+        from recon.priors.tv import check_weight
+
+        check_weight(tau, "--tau")
     params = _parse_params(param)
     if speed is not None:
         if scene != "colorwheel":
@@ -99,7 +109,8 @@ def video(
     with output_parents(out):
         res = run_video(scene, out, design=design, overrides=parse_overrides(set_),
                         frames=frames, fps=fps, views=views, solver=solver, iters=iters,
-                        cold_iters=cold_iters, tau=tau, temporal=temporal, seed=seed,
+                        cold_iters=cold_iters, tau=tau, prior=prior, temporal=temporal,
+                        seed=seed,
                         noise=noise, subframes=subframes, scene_params=params,
                         segment_frames=segment, workers=workers, scheduler=scheduler,
                         video_format=fmt, operator=operator, progress=progress)

@@ -251,7 +251,9 @@ class _CG:
         np.subtract(b, ap, out=r)
         np.copyto(p, r)
         rr = float(np.vdot(r, r))
-        stop = 1e-12 * max(float(np.vdot(b, b)), 1e-300)
+        # Stop only at rounding level: an x step solved loosely is a fixed point of the outer
+        # iteration (x = z, no change) short of the minimiser.
+        stop = float(np.finfo(b.dtype).eps) ** 2 * max(float(np.vdot(b, b)), 1e-300)
         for _ in range(n_iter):
             if rr <= stop:
                 break

@@ -22,7 +22,7 @@ def problem():
 
 
 def test_registry():
-    assert set(SOLVERS) == {"twist", "gap-tv", "fista-tv"}
+    assert set(SOLVERS) == {"twist", "gap-tv", "fista-tv", "admm"}
 
 
 @pytest.mark.parametrize("name", NAMES)

@@ -18,7 +18,7 @@ from recon.solvers import SOLVERS
 NAMES = sorted(SOLVERS)
 
 #: TV weights for data scaled to [0, 1] (the benchmark's settings).
-TAU = {"gap-tv": 0.1, "twist": 0.15, "fista-tv": 0.15}
+TAU = {"gap-tv": 0.1, "twist": 0.15, "fista-tv": 0.15, "admm": 0.15}
 
 
 def piecewise_cube(l: int = 6, h: int = 24, w: int = 24, seed: int = 0,
