@@ -35,7 +35,7 @@ from recon.priors.base import PriorBase
 from recon.prox.tv import TVProx, tv_norm
 
 __all__ = ["SubspaceTV", "band_gram", "symmetric_eigh", "leading_basis", "project", "expand",
-           "default_rank", "make_subspace_tv"]
+           "default_rank", "subspace_weight", "make_subspace_tv"]
 
 
 def default_rank(n_bands: int) -> int:
@@ -243,22 +243,41 @@ class SubspaceTV(_Subspace):
             self._tv.reset()
 
 
-#: The subspace prior's weight relative to the TV weight the caller would use (its ``tau``,
-#: which follows the measurement's noise in kaleidospec): the coefficient images carry the same
-#: noise per pixel as the bands (the basis is orthonormal), so the same rule applies.
+#: The subspace prior's weight relative to the TV weight the caller would use (its ``tau``):
+#: the coefficient images carry the same noise per pixel as the bands (the basis is
+#: orthonormal), so TV's strength serves; docs/priors.md measures it so.
 WEIGHT_PER_TV_WEIGHT = 1.0
+
+#: Weight per view and per unit of the measurement's rms noise (unit-row-norm units) for the
+#: least-squares solvers, :math:`\lambda = \kappa\, n\, \bar\sigma`, where no weight is given:
+#: the constant of the application's TV rule (``kaleidospec.reconstruct.TAU_PER_NOISE``), with
+#: which docs/priors.md measured this prior.
+WEIGHT_PER_NOISE = {"fista": 0.15, "twist": 0.15, "admm": 0.15}
+
+
+def subspace_weight(ctx) -> float:
+    """The weight :func:`make_subspace_tv` uses: ``ctx.weight`` (the caller's TV weight) times
+    :data:`WEIGHT_PER_TV_WEIGHT`; else :math:`\kappa\, n\, \bar\sigma`
+    (:data:`WEIGHT_PER_NOISE`) where the solver, the noise and the views are known; else the
+    solver's default TV weight (:func:`recon.priors.tv.default_weight`)."""
+    from recon.priors.tv import default_weight
+
+    if ctx.weight is not None:
+        return float(ctx.weight) * WEIGHT_PER_TV_WEIGHT
+    solver = "fista" if ctx.solver is None else str(ctx.solver)
+    algo = solver[:-3] if solver.endswith("-tv") else solver
+    if ctx.noise is not None and ctx.n_views and algo in WEIGHT_PER_NOISE:
+        noise = float(ctx.noise)
+        if not (math.isfinite(noise) and noise > 0):
+            raise InputError(f"the measurement's noise must be positive, got {ctx.noise}")
+        return WEIGHT_PER_NOISE[algo] * int(ctx.n_views) * noise
+    return default_weight(solver)
 
 
 def make_subspace_tv(ctx, *, rank: int | None = None, tv_iters: int = 2,
                      warm_dual: bool = True, isotropic: bool = True) -> SubspaceTV:
-    """The registry's factory (:func:`recon.priors.make_prior` ``("subspace-tv")``): the
-    weight is ``ctx.weight`` (the caller's TV weight) times :data:`WEIGHT_PER_TV_WEIGHT`, or
-    the solver's default TV weight; ``warm_dual`` is accepted for the TV options' sake (the
+    """The registry's factory (:func:`recon.priors.make_prior` ``("subspace-tv")``), with the
+    weight of :func:`subspace_weight`; ``warm_dual`` is accepted for the TV options' sake (the
     dual is always kept: the basis changes little between calls)."""
-    from recon.priors.tv import default_weight
-
-    weight = ctx.weight
-    if weight is None:
-        weight = default_weight(ctx.solver) if ctx.solver is not None else default_weight("fista")
-    return SubspaceTV(weight * WEIGHT_PER_TV_WEIGHT, rank=rank, tv_iters=tv_iters,
-                      isotropic=isotropic, threads=ctx.threads)
+    return SubspaceTV(subspace_weight(ctx), rank=rank, tv_iters=tv_iters, isotropic=isotropic,
+                      threads=ctx.threads)

@@ -157,3 +157,13 @@ def test_registry_builds_it_with_the_callers_weight():
     assert isinstance(prior, Prior)
     assert isinstance(prior, SubspaceTV)
     assert prior.rank == 4 and prior.weight == pytest.approx(0.02)
+
+
+def test_weight_follows_the_noise_without_a_weight():
+    """No weight given: κ n σ̄ for the least-squares solvers, as the application's TV rule."""
+    prior = make_prior("subspace-tv", shape=(12, 20, 24), solver="fista-tv", noise=0.02,
+                       n_views=5)
+    assert prior.weight == pytest.approx(0.15 * 5 * 0.02)
+    assert make_prior("subspace-tv", solver="gap").weight == pytest.approx(0.1)
+    with pytest.raises(InputError):
+        make_prior("subspace-tv", solver="fista", noise=-1.0, n_views=1)
