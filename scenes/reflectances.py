@@ -84,7 +84,12 @@ def reflectance_mosaic(shape=(256, 256), wavelengths=None, *, cells: int = 48, s
         py, px = rng.uniform(0.0, 2.0 * np.pi, 2)
         shading += np.cos(2 * np.pi * fy * yy + py) * np.cos(2 * np.pi * fx * xx + px)
     shading = 0.35 + 0.65 * (shading - shading.min()) / max(np.ptp(shading), 1e-12)
-    a, b = refl[pair[label, 0]], refl[pair[label, 1]]
-    cube = ((1.0 - t)[..., None] * a + t[..., None] * b) * shading[..., None]
-    cube *= _illuminant(illuminant, wl)[None, None, :]
-    return cube.astype(np.float32)
+    light = _illuminant(illuminant, wl)
+    ramp = (1.0 - t) * shading
+    t *= shading
+    # Band by band: memory of a few images and the float32 cube, whatever the grid.
+    cube = np.empty((h, w, wl.size), np.float32)
+    for k in range(wl.size):
+        a, b = refl[pair[:, 0], k], refl[pair[:, 1], k]
+        cube[:, :, k] = (ramp * a[label] + t * b[label]) * light[k]
+    return cube

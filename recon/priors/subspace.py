@@ -18,9 +18,8 @@ has the exact proximal map :math:`\mathrm{prox}_{s\varphi}(v) = E\,\mathrm{prox}
 \mathrm{TV}}(E^\top v)`, because :math:`\|x - v\|^2 = \|z - E^\top v\|^2 + \|(I - EE^\top) v\|^2`
 for :math:`x = Ez`.  TV is thus paid on :math:`k` images instead of :math:`L` bands.
 
-:class:`SubspaceDenoiser` keeps the same projection and replaces the TV step by a plug-and-play
-denoiser of each eigenimage (the FastHyDe / NGmeet idea: denoise :math:`k` images, not
-:math:`L` bands).
+The basis, the projection and the expansion are Numba kernels
+(:mod:`recon.kernels.subspace`) on float32 cubes, NumPy otherwise.
 """
 
 from __future__ import annotations
@@ -128,8 +127,7 @@ def expand(e: np.ndarray, z: np.ndarray, out: np.ndarray | None = None) -> np.nd
         with kernels.threads():
             ks.expand(np.ascontiguousarray(e), zf, out.reshape(e.shape[0], -1))
         return out
-    np.matmul(e, zf, out=out.reshape(e.shape[0], -1)) if out.flags.c_contiguous else \
-        np.copyto(out, (e @ zf).reshape(shape))
+    np.copyto(out, (e @ zf).reshape(shape))
     return out
 
 
@@ -193,6 +191,8 @@ class SubspaceTV(_Subspace):
         Threads of the TV prox (:class:`~recon.prox.TVProx`).
     """
 
+    name = "subspace-tv"
+
     def __init__(self, weight: float, rank: int | None = None, tv_iters: int = 2,
                  isotropic: bool = True, threads: int | None = None):
         super().__init__(rank)
@@ -206,8 +206,6 @@ class SubspaceTV(_Subspace):
         self.isotropic = bool(isotropic)
         self.threads = threads
         self._tv: TVProx | None = None
-
-    name = "subspace-tv"
 
     def describe(self) -> dict:
         return {"prior": self.name, "weight": self.weight, "rank": self.rank,
@@ -256,7 +254,7 @@ WEIGHT_PER_NOISE = {"fista": 0.15, "twist": 0.15, "admm": 0.15}
 
 
 def subspace_weight(ctx) -> float:
-    """The weight :func:`make_subspace_tv` uses: ``ctx.weight`` (the caller's TV weight) times
+    r"""The weight :func:`make_subspace_tv` uses: ``ctx.weight`` (the caller's TV weight) times
     :data:`WEIGHT_PER_TV_WEIGHT`; else :math:`\kappa\, n\, \bar\sigma`
     (:data:`WEIGHT_PER_NOISE`) where the solver, the noise and the views are known; else the
     solver's default TV weight (:func:`recon.priors.tv.default_weight`)."""
