@@ -164,6 +164,15 @@ def summary(rows: list[dict], priors) -> list[str]:
     return lines
 
 
+def write_results(out: Path, args, rows: list[dict], lines: list[str]) -> None:
+    """``exp_priors.json`` in ``out`` (atomically): the settings, every row, the summary."""
+    from recon.io.atomic import write_text
+
+    write_text(out / "exp_priors.json",
+               json.dumps({"settings": vars(args), "rows": rows, "summary": lines}, indent=2)
+               + "\n")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--designs", default="cassi", help="comma list of cassi, small, paper")
@@ -188,6 +197,8 @@ def main(argv=None) -> int:
               file=sys.stderr)
         return 2
     counts = [int(v) for v in args.views.split(",") if v]
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
     rows: list[dict] = []
     for name in scenes:
         folder = scene_folder(name)
@@ -200,19 +211,12 @@ def main(argv=None) -> int:
                 rows += cassi_rows(name, folder, priors, args)
             else:
                 rows += design_rows(design, name, folder, priors, counts, args)
+        # After every scene: a long run (paper: minutes a solve) keeps what it measured.
+        write_results(out, args, rows, summary(rows, priors))
     if not rows:
         print("nothing measured: no scene found")
         return 1
-    lines = summary(rows, priors)
-    print("\n".join(lines))
-    from recon.io.atomic import write_text
-
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    settings = {k: v for k, v in vars(args).items()}
-    write_text(out / "exp_priors.json",
-               json.dumps({"settings": settings, "rows": rows, "summary": lines}, indent=2)
-               + "\n")
+    print("\n".join(summary(rows, priors)))
     return 0
 
 
