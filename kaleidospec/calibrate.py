@@ -25,10 +25,8 @@ runs :mod:`recon.calibration` on them, as a lab would with its targets:
    (:func:`model_flat_gains`: a blurred white's level is not its deconvolution's).
    ``"colorchecker"`` refits them as the paper does: the ColorChecker reconstructed with
    those gains, per-band least squares of its patches against
-   their reference radiance.  That refit is biased by the reconstruction itself (measured on
-   ``small``, 5 views: it moves the gains by −12 % to +45 % and costs 1.3 dB (shifted) and
-   1.8 dB (footprint) on the ColorChecker, 0.5 dB on the natural scene;
-   ``docs/figures.md``), so the ColorChecker is a check here, not a fit.
+   their reference radiance.  That refit is biased by the reconstruction itself (its errors
+   become the gains' errors), so the ColorChecker is a check here, not a fit.
 
 The result (:class:`recon.calibration.Calibration`) is one ``.npz`` + ``.json`` in the cache
 folder (:func:`calibration_file`), keyed by the design's hash and the calibration code's
@@ -158,8 +156,8 @@ def calibrate(design, *, model: str | None = None, cache_dir=None, progress: boo
     model : str, optional
         The calibrated model it must hold (:data:`kaleidospec.models.MODELS`; default
         :data:`kaleidospec.models.DEFAULT_MODEL`).  ``"footprint"`` adds L·P_y·P_x comb
-        captures (:func:`recon.calibration.footprint.comb_period`: 165 and 19 s more for
-        ``small``); a cached calibration without the model is redone with it.
+        captures (:func:`recon.calibration.footprint.comb_period`); a cached calibration
+        without the model is redone with it.
     cache_dir : path, optional
         Where ``calibration-<hash>.npz/.json`` live (default: the simulator's cache folder,
         ``$KALEIDOSPEC_CACHE`` or ``~/.cache/kaleidospec``).
@@ -177,16 +175,17 @@ def calibrate(design, *, model: str | None = None, cache_dir=None, progress: boo
     """
     from kaleidospec.instrument import cache_dir as folder
     from kaleidospec.models import DEFAULT_MODEL, holds
-    from recon.calibration import calibration_path, load_cached, save_calibration
+    from recon.calibration import load_cached, save_cached
 
     model = DEFAULT_MODEL if model is None else model
     cdir = folder(cache_dir)
     if not force:
+        # None also for a damaged entry (removed with one warning line): calibrated again.
         cal = load_cached(cdir, design.hash)
         if cal is not None and holds(cal, model):
             return cal
     cal = calibrate_from_captures(design, models=(model,), repeats=repeats, progress=progress)
-    save_calibration(calibration_path(cdir, design.hash), cal)
+    save_cached(cdir, cal)
     return cal
 
 
@@ -285,13 +284,11 @@ def calibrate_from_captures(design, *, models=None, repeats: int = 4, progress: 
             # The masks are now sharp, but the lens blurs the coded image after the mask: the
             # shifted and smeared models blur their measurement with the diffraction-limited
             # PSF again.  One PSF at the bands' mean radius: one a band (through a basis of
-            # two PSFs) reconstructed `paper`'s five views to 27.00 dB against 27.20, at twice
-            # the time (docs/figures.md, "Where the shifted model's error lies").
+            # two PSFs) costs twice the time and gained nothing (docs/calibration.md).
             cal = dataclasses.replace(cal, psf=airy_kernel(float(np.mean(airy))))
             # Gains from the flat field through the model itself: the level of a blurred white
-            # is 0.94–0.96 of its deconvolution's on `paper` (expo / levels made the model 5–6 %
-            # too dark, every reconstruction as much too bright): `paper`, five views, natural,
-            # 26.55 -> 27.20 dB (recon.calibration.flat_field_gains).
+            # is below its deconvolution's, so expo / levels would make the model too dark and
+            # every reconstruction as much too bright (recon.calibration.flat_field_gains).
             cal = dataclasses.replace(cal, gains=model_flat_gains(cal, whites, expo))
         del whites
         measured = Measured(design=design, captures=caps, boxes=boxes, centroids=cen, fit=fit,
@@ -395,8 +392,9 @@ def calibration_file(design, cache_dir=None) -> Path:
 
 
 def is_cached(design, cache_dir=None) -> bool:
-    """Whether a calibration of ``design`` is in the cache (:func:`calibrate` would load it)."""
+    """Whether a calibration of ``design`` is in the cache (:func:`calibrate` would load it; a
+    cut or foreign entry is not, :func:`recon.calibration.store.is_cached`)."""
     from kaleidospec.instrument import cache_dir as folder
-    from recon.calibration import calibration_path
+    from recon.calibration.store import is_cached as cached
 
-    return calibration_path(folder(cache_dir), design.hash).is_file()
+    return cached(folder(cache_dir), design.hash)

@@ -343,9 +343,9 @@ def cache_dir(folder=None) -> Path:
     """``folder`` (created if missing), else the simulator's cache folder
     (``$KALEIDOSPEC_CACHE`` or ``~/.cache/kaleidospec``): transports and calibrations."""
     if folder is not None:
-        p = Path(folder)
-        p.mkdir(parents=True, exist_ok=True)
-        return p
+        from recon.io.cache import check_folder
+
+        return check_folder(folder)     # one line (exit 2) when it cannot be written
     from sim.transport import cache_dir as default
 
     return default()

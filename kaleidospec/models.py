@@ -43,11 +43,9 @@ __all__ = ["MODELS", "DEFAULT_MODEL", "RUN_MODELS", "GAINS", "SMEAR_SAMPLES", "c
 
 #: Every calibrated model a calibration can hold; the first (shifted) is in every calibration.
 MODELS = ("shifted", "smeared", "footprint")
-#: The model used when none is named: the one every design can calibrate in minutes.  On
-#: ``small`` (FISTA-TV, 5 views, ``tools/exp_views.py``) the footprint model is the most
-#: accurate (within 0.07 dB of the exact operator at 1–9 views) and the smeared one is no
-#: better than the shifted one (24.36 against 24.61 dB ColorChecker, 22.69 against 22.77
-#: natural); on ``paper`` the footprint matrix does not fit in memory.
+#: The model used when none is named: the one every design can calibrate in minutes.  The
+#: footprint model is the more accurate where it fits in memory (not on ``paper``), the smeared
+#: one no better than the shifted one (docs/calibration.md).
 DEFAULT_MODEL = "shifted"
 #: The models ``kaleidospec run`` and ``demo`` offer (``--model``); ``run`` calibrates each
 #: itself.

@@ -38,17 +38,14 @@ import numpy as np
 from recon.errors import InputError
 
 __all__ = ["DEFAULTS", "TAU_PER_VIEW", "TAU_PER_NOISE", "first_views", "tv_weight",
-           "prior_weight", "unit_row_scale", "normalised", "measurement_noise", "design_noise", "solve_views",
-           "calibrated_operator", "frame_measurements", "reconstruct_views",
+           "prior_weight", "unit_row_scale", "normalised", "measurement_noise", "design_noise",
+           "solve_views", "calibrated_operator", "frame_measurements", "reconstruct_views",
            "reconstruct_oracle", "Reconstructor"]
 
 #: Reconstruction defaults: FISTA-TV run until the relative change of the cube
-#: :math:`\|f_k-f_{k-1}\|/\|f_{k-1}\|` falls below ``tol``, at most ``iters`` iterations.  A fixed
-#: 100 iterations left ``paper`` far from converged (5 views: 24.77 dB where the converged
-#: solution gives 25.6, the exact operator 25.90 where it gives 27.9; one view 16.78 where it
-#: gives 19.5); ``tol = 1e-3`` stops within 0.1 dB of the PSNR that 400 iterations reach
-#: (``small``, one view: iteration 153 of the test design; ``paper``, five views: iteration
-#: 220).  See docs/figures.md, "Convergence of the default reconstruction".
+#: :math:`\|f_k-f_{k-1}\|/\|f_{k-1}\|` falls below ``tol``, at most ``iters`` iterations: a fixed
+#: count either stops far from converged (``paper``) or runs on after it, while ``tol = 1e-3``
+#: stops close to the PSNR the cap reaches (docs/reconstruction.md, "The stopping rule").
 DEFAULTS = {"solver": "fista-tv", "iters": 400, "tol": 1e-3, "tau": None}
 #: The application's TV weight rule, in its unit-row-norm units (:func:`tv_weight`); the
 #: solvers' own defaults and the weight's valid range are :mod:`recon.priors.tv`'s.
@@ -57,9 +54,9 @@ DEFAULTS = {"solver": "fista-tv", "iters": 400, "tol": 1e-3, "tau": None}
 TAU_PER_VIEW = {"fista-tv": 0.005, "twist": 0.005, "admm": 0.005}
 #: TV weight per view and per unit of the measurement's rms noise (unit-row-norm units), for the
 #: solvers whose data term is a least-squares fit: :math:`\tau = \kappa\, n\, \bar\sigma`.
-#: Chosen on a scene no reported figure uses (the colour wheel, ``small``, five views; see
-#: docs/figures.md): it gives ``small`` 0.5-0.8 and ``paper`` about 2 times the fixed weight.
-#: ADMM minimises the same objective as FISTA and TwIST, so it shares their rule.
+#: Chosen on a scene no reported figure uses (the colour wheel, ``small``, five views;
+#: docs/reconstruction.md, "The TV weight follows the noise").  ADMM minimises the same
+#: objective as FISTA and TwIST, so it shares their rule.
 TAU_PER_NOISE = {"fista-tv": 0.15, "twist": 0.15, "admm": 0.15}
 
 
@@ -91,9 +88,8 @@ def tv_weight(solver, tau, n_views, noise=None):
 
     The data term sums over the views' pixels, hence the factor :math:`n` (GAP-TV's
     projection step does not: its weight is per view, and fixed).  The weight follows the
-    noise because the best one does: with the fixed weight ``small`` did best at 0.35-0.5
-    times it and ``paper`` at 2 times, and their noise in these units differs by 3.6 times
-    (docs/figures.md).
+    noise because the best one does: the presets' best fixed weights differ as their noise in
+    these units does (docs/reconstruction.md, "The TV weight follows the noise").
     """
     if tau is not None:
         from recon.priors.tv import check_weight
@@ -458,7 +454,9 @@ class Reconstructor:
         r"""Reconstruct one frame → (cube (H, W, L), info).
 
         ``x0`` (H, W, L) warm-starts the solver; ``mu`` > 0 (with ``x0``) adds the temporal
-        term :math:`\mu\lVert f - x_0\rVert_1` (GAP-TV only, :mod:`recon.temporal`).
+        term :math:`\mu\lVert f - x_0\rVert_1` (:mod:`recon.temporal`: GAP carries its
+        iteration's state into it; the other solvers take it as a prior around the spatial
+        one, :class:`~recon.temporal.TemporalPrior`).
         """
         if self.tau is None and self.prior == "tv":
             raise InputError("the TV weight follows the noise: measure a frame "
@@ -467,14 +465,23 @@ class Reconstructor:
         x0_bm = None if x0 is None else np.ascontiguousarray(
             np.moveaxis(np.asarray(x0, np.float32), 2, 0))
         g = np.asarray(g, np.float32)
-        if mu > 0 and x0_bm is not None:
+        if mu > 0 and x0_bm is not None and self.solver == "gap-tv":
             from recon.temporal import gap_tv_temporal
 
-            if self.solver != "gap-tv":
-                raise InputError("the temporal TV term is implemented for gap-tv only")
             res = gap_tv_temporal(self.op, g, ref=x0_bm, mu=float(mu), iters=int(iters),
                                   x0=x0_bm, callback=callback, **self.prior_options(),
                                   **self.solver_options())
+        elif mu > 0 and x0_bm is not None:
+            # Any other solver: the temporal term as a prior around the spatial one.
+            from recon.priors import TVPrior
+            from recon.solvers import solve
+            from recon.temporal import TemporalPrior
+
+            spatial = self.prior_options().get("prior") or TVPrior(self.tau,
+                                                                   threads=self.threads)
+            res = solve(self.solver, self.op, g, iters=int(iters), x0=x0_bm,
+                        callback=callback, prior=TemporalPrior(spatial, x0_bm, float(mu)),
+                        **self.solver_options())
         else:
             from recon.solvers import solve
 

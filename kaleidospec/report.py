@@ -52,22 +52,13 @@ def write_json(path, obj, *, indent: int = 2, sort_keys: bool = False) -> Path:
                                        allow_nan=False) + "\n")
 
 
-class _Silent:
-    def update(self, n: int = 1) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
-
-
 def progress_bar(total: int, desc: str, show: bool = True):
-    """A progress bar of ``total`` steps on stderr (tqdm, cleared when done), or one that
-    shows nothing."""
-    if not show:
-        return _Silent()
-    from tqdm import tqdm
+    """A progress report of ``total`` steps on stderr: a bar on a terminal (cleared when
+    done), one line when the work ends elsewhere, nothing unless ``show``
+    (:func:`recon.progress.progress_bar`)."""
+    from recon.progress import progress_bar as bar
 
-    return tqdm(total=total, desc=desc, unit="step", leave=False)
+    return bar(total=total, desc=desc, unit="step", show=show)
 
 
 # ------------------------------------------------------------------------------- still runs

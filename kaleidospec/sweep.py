@@ -23,7 +23,9 @@ internal reflection in the prism) is ``invalid``; a design whose views do not fi
 
 Result store
 ------------
-``<out>/points/<key>.json``, one file per point, written atomically; ``key`` is the design hash
+``<out>/points/<key>.json``, one file per point, a checked entry of :mod:`recon.io.cache` (written
+atomically with a checksum; a damaged one is removed with a warning and computed again); ``key``
+is the design hash
 (:attr:`sim.design.Design.hash`, which covers the swept value and every override) plus a hash of
 the settings that change the result (scene, views, solver, iterations, τ, seed, samples, what
 was computed). A point whose file exists is never recomputed: rerunning a sweep, or extending
@@ -277,21 +279,25 @@ def _reconstruct(design, s: dict) -> dict:
 
 # ---------------------------------------------------------------------- store
 def _load_point(path: Path) -> dict | None:
-    try:
-        with open(path, encoding="utf-8") as fh:
-            r = json.load(fh)
-    except (OSError, ValueError):
-        return None  # a damaged file is recomputed
-    return r if isinstance(r, dict) and r.get("status") in _STORED else None
+    """A stored point, or None (none yet, or a damaged or foreign entry: removed with one
+    warning line by :func:`recon.io.cache.read_json`, so the point is computed again)."""
+    from recon.io.cache import read_json
+
+    # The file name is the point's key: its entry must say the same, and this code's version.
+    r = read_json(path, kind="sweep-point", version=MEASURE_VERSION, key=path.stem)
+    return r if r is not None and r.get("status") in _STORED else None
 
 
 _STORED = ("ok", "invalid", "views-do-not-fit")
 
 
 def _store_point(folder: Path, result: dict) -> Path:
-    from kaleidospec.report import write_json
+    from kaleidospec.report import finite
+    from recon.io.cache import write_json
 
-    return write_json(folder / f"{point_key(result)}.json", result, indent=1, sort_keys=True)
+    k = point_key(result)
+    return write_json(folder / f"{k}.json", finite(result), kind="sweep-point",
+                      design_hash=result.get("design_hash"), version=MEASURE_VERSION, key=k)
 
 
 # ---------------------------------------------------------------------- execution

@@ -21,13 +21,14 @@ workers see the same output folder (``dask.distributed`` is imported only then).
 (and GAP-TV's step) is built once per segment, not per frame
 (:class:`kaleidospec.reconstruct.Reconstructor`).
 
-Resume.  Every file is written atomically (temporary file + rename) and each frame's last file
-is its marker: a raw frame is done when its sidecar exists (written after the image), a
-reconstructed frame when its metrics file exists (written after the cube).  A new run on the same
-folder skips finished frames; an interrupted frame is redone from the start; a warm start after
-an interruption reads the previous frame's cube back (float32 EXR, lossless, so the result is
-the same as without the interruption).  ``video.json`` pins the settings: a run with other
-settings on the same folder is refused.
+Resume.  Every file is written atomically (temporary file + rename) and each stage of a frame
+ends with a seal of its files' checksums (``checks/``): a raw frame is done when its seal matches
+its image, sidecar and truth, a reconstructed frame when its seal matches its cube and metrics.
+A new run on the same folder skips finished frames; an interrupted frame is redone from the
+start, and so is one whose files no longer match their seal (one warning line names it); a
+warm start after an interruption reads the previous frame's cube back (float32 EXR, lossless,
+so the result is the same as without the interruption).  ``video.json`` pins the settings: a
+run with other settings on the same folder is refused.
 
 Layout of the output folder::
 
@@ -35,7 +36,10 @@ Layout of the output folder::
     raw/frame_00000.exr|.json  raw frames + sidecars
     truth/frame_00000.exr      ground truth on the reconstruction grid (spectral EXR)
     cubes/frame_00000.exr      reconstructions (spectral EXR, recon.io.cubes.write_cube)
-    metrics/frame_00000.json   per-frame metrics (the frame's done marker)
+    metrics/frame_00000.json   per-frame metrics
+    checks/raw_frame_00000.json, checks/cube_frame_00000.json
+                               the SHA-256 of a frame's raw, sidecar and truth, and of its cube
+                               and metrics (recon.io.cache.seal): the stages' done markers
     metrics.json, metrics.csv  all frames' metrics and their summary
     video.gif (or .webp)       sRGB: ground truth | reconstruction, side by side
 """
@@ -68,6 +72,7 @@ class VideoLayout:
         self.truth_dir = self.root / "truth"
         self.cube_dir = self.root / "cubes"
         self.metrics_dir = self.root / "metrics"
+        self.check_dir = self.root / "checks"
         self.manifest = self.root / "video.json"
 
     @staticmethod
@@ -90,16 +95,48 @@ class VideoLayout:
         return self.metrics_dir / f"{self.name(i)}.json"
 
     def make(self) -> None:
-        for d in (self.root, self.raw_dir, self.truth_dir, self.cube_dir, self.metrics_dir):
+        for d in (self.root, self.raw_dir, self.truth_dir, self.cube_dir, self.metrics_dir,
+                  self.check_dir):
             d.mkdir(parents=True, exist_ok=True)
 
+    def check(self, stage: str, i: int) -> Path:
+        """The seal of frame ``i``'s files of ``stage`` (``raw`` or ``cube``): their SHA-256,
+        written after them (:func:`recon.io.cache.seal`), so it marks the stage done."""
+        return self.check_dir / f"{stage}_{self.name(i)}.json"
+
+    def files(self, stage: str, i: int) -> dict:
+        """The files of frame ``i`` that the seal of ``stage`` covers."""
+        if stage == "raw":
+            return {"raw": self.raw(i), "sidecar": self.raw_sidecar(i), "truth": self.truth(i)}
+        return {"cube": self.cube(i), "metrics": self.metrics(i)}
+
+    def seal(self, stage: str, i: int) -> None:
+        from recon.io.cache import seal
+
+        self.check_dir.mkdir(exist_ok=True)
+        seal(self.check(stage, i), self.files(stage, i), kind="video-frame",
+             key=f"{stage}-{i}")
+
+    def verified(self, stage: str, i: int) -> bool:
+        """Whether frame ``i``'s ``stage`` is done and its files are the ones sealed; a seal
+        that does not match (a file cut short, garbled or missing) is removed with one warning
+        line, so the frame is redone."""
+        from recon.io.cache import check_seal
+
+        return check_seal(self.check(stage, i), self.files(stage, i), kind="video-frame",
+                          key=f"{stage}-{i}")
+
     def rendered(self, i: int) -> bool:
-        """Raw frame, sidecar and truth all present (the sidecar is written last)."""
-        return self.raw_sidecar(i).exists() and self.raw(i).exists() and self.truth(i).exists()
+        """Raw frame, sidecar, truth and their seal present (the seal is written last; see
+        :meth:`verified` for the check of their contents)."""
+        return self.check("raw", i).exists() and all(
+            p.exists() for p in self.files("raw", i).values())
 
     def reconstructed(self, i: int) -> bool:
-        """Cube and metrics present (the metrics file is written last)."""
-        return self.metrics(i).exists() and self.cube(i).exists()
+        """Cube, metrics and their seal present (the seal is written last; see
+        :meth:`verified` for the check of their contents)."""
+        return self.check("cube", i).exists() and all(
+            p.exists() for p in self.files("cube", i).values())
 
     def count_reconstructed(self, n: int) -> int:
         return sum(self.reconstructed(i) for i in range(n))
@@ -131,7 +168,7 @@ def render_sequence(anim, design, out_dir, *, radiance_scale: float, seed: int =
 
     lay = VideoLayout(out_dir)
     lay.make()
-    todo = [i for i in range(len(anim)) if not lay.rendered(i)]
+    todo = [i for i in range(len(anim)) if not lay.verified("raw", i)]
     stats = {"rendered": 0, "skipped": len(anim) - len(todo), "seconds": 0.0,
              "write_seconds": 0.0, "scene_seconds": 0.0}
     if not todo:
@@ -140,9 +177,10 @@ def render_sequence(anim, design, out_dir, *, radiance_scale: float, seed: int =
         renderer = FrameRenderer(design, anim.shape, anim.wavelengths, progress=progress)
     bar = None
     if progress:
-        from tqdm import tqdm
+        from recon.progress import progress_bar
 
-        bar = tqdm(total=len(anim), initial=stats["skipped"], desc="render", unit="frame")
+        bar = progress_bar(total=len(anim), initial=stats["skipped"], desc="render",
+                           unit="frame", leave=True)
     desc = anim.describe()
     try:
         for i in todo:
@@ -157,6 +195,7 @@ def render_sequence(anim, design, out_dir, *, radiance_scale: float, seed: int =
                         animation=desc, noise_seed=[int(seed), i])
             write_cube(lay.truth(i), ground_truth(design, cube), anim.wavelengths)
             write_raw(lay.raw(i), frame, meta)
+            lay.seal("raw", i)
             stats["scene_seconds"] += t1 - t0
             stats["seconds"] += t2 - t0
             stats["write_seconds"] += time.perf_counter() - t2
@@ -203,7 +242,7 @@ def reconstruct_segment(out_dir, start: int, stop: int, settings: dict, on_frame
     from recon.io.raw import read_raw
 
     lay = VideoLayout(out_dir)
-    todo = [i for i in range(start, stop) if not lay.reconstructed(i)]
+    todo = [i for i in range(start, stop) if not lay.verified("cube", i)]
     summary = {"start": start, "stop": stop, "done": 0, "skipped": (stop - start) - len(todo),
                "seconds": 0.0}
     if not todo:
@@ -245,6 +284,7 @@ def reconstruct_segment(out_dir, start: int, stop: int, settings: dict, on_frame
                     "tau": None if info["tau"] is None else float(info["tau"]),
                     "prior": info.get("prior", "tv"), "mu": float(info.get("mu", 0.0)), **m}
         write_json(lay.metrics(i), rec_info, sort_keys=True)
+        lay.seal("cube", i)
         prev, prev_i = cube, i
         summary["done"] += 1
         if on_frame is not None:
@@ -307,8 +347,9 @@ def reconstruct_sequence(out_dir, n_frames: int, segments, settings: dict, *,
         ``done``, ``skipped``, ``seconds`` (wall), ``backend``, ``workers``.
     """
     lay = VideoLayout(out_dir)
-    pending = [seg for seg in segments
-               if any(not lay.reconstructed(i) for i in range(seg[0], seg[1]))]
+    # Checked once here (a damaged frame is redone); the progress below only counts seals.
+    unsound = {i for a, b in segments for i in range(a, b) if not lay.verified("cube", i)}
+    pending = [seg for seg in segments if any(i in unsound for i in range(seg[0], seg[1]))]
     already = lay.count_reconstructed(n_frames)
     ncpu = cores()
     workers = ncpu if workers is None else max(1, int(workers))
@@ -321,9 +362,10 @@ def reconstruct_sequence(out_dir, n_frames: int, segments, settings: dict, *,
         s["threads"] = max(1, ncpu // nproc) if backend != "dask" else 1
     bar = None
     if progress:
-        from tqdm import tqdm
+        from recon.progress import progress_bar
 
-        bar = tqdm(total=n_frames, initial=already, desc="reconstruct", unit="frame")
+        bar = progress_bar(total=n_frames, initial=already, desc="reconstruct", unit="frame",
+                           leave=True)
     t0 = time.perf_counter()
     results = []
 
@@ -459,6 +501,17 @@ def _check_manifest(lay: VideoLayout, config: dict) -> dict | None:
     return old
 
 
+def default_solver(design, operator: str = "calibrated") -> str:
+    """The video's solver when none is named: GAP-TV, or FISTA-TV with the exact operator
+    (``operator="oracle"``) or a calibration that carries the lens's PSF
+    (:func:`kaleidospec.calibrate.deconvolution_radii`): such a calibration blurs its rows
+    together, like the exact operator, and GAP-TV's diagonal projection holds for neither."""
+    from kaleidospec.calibrate import deconvolution_radii
+
+    return "fista-tv" if operator == "oracle" or deconvolution_radii(design) is not None \
+        else "gap-tv"
+
+
 def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | None = None,
               frames: int | None = None, fps: float = 10.0, views: int = 5,
               solver: str | None = None, iters: int = 15, cold_iters: int = 50,
@@ -520,7 +573,7 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
         Render and reconstruction statistics and the metrics summary.
     """
     from kaleidospec import instrument
-    from kaleidospec.calibrate import calibrate, calibration_file, deconvolution_radii
+    from kaleidospec.calibrate import calibrate, calibration_file
     from kaleidospec.report import write_json
     from recon.app import solver_names
 
@@ -534,10 +587,7 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
         check_weight(tau, "--tau")
     d = instrument.get_design(design, overrides)
     if solver is None:
-        # A calibration that carries the lens's PSF blurs its rows together, like the exact
-        # operator: GAP-TV's diagonal projection does not hold for either.
-        solver = "fista-tv" if operator == "oracle" or deconvolution_radii(d) is not None \
-            else "gap-tv"
+        solver = default_solver(d, operator)
     if solver not in solver_names():
         raise InputError(f"--solver must be one of {', '.join(solver_names())}, got {solver!r}")
     if operator == "oracle":
@@ -549,8 +599,6 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
             raise InputError(f"--{name} must be an integer >= {lo}, got {v!r}")
     if not (math.isfinite(float(temporal)) and temporal >= 0):
         raise InputError(f"--temporal must be >= 0, got {temporal}")
-    if temporal > 0 and solver != "gap-tv":
-        raise InputError("--temporal is implemented for the gap-tv solver only")
     if video_format not in ("gif", "webp"):
         raise InputError(f"--format must be gif or webp, got {video_format!r}")
     if scheduler is not None and not str(scheduler).startswith(("tcp://", "tls://", "inproc://",

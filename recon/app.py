@@ -202,7 +202,8 @@ def reconstruct(
     wavelengths : array (L,), optional
         Only used for the colour metric (CIEDE2000) when ``truth`` is given.
     progress : bool
-        Show a tqdm progress bar on stderr.
+        Report progress on stderr (a bar on a terminal, one line at the end elsewhere:
+        :func:`recon.progress.progress_bar`).
     **solver_options
         Passed on to the solver.
 
@@ -241,9 +242,9 @@ def reconstruct(
     history: list[float] = []
     bar = None
     if progress:
-        from tqdm import tqdm
+        from recon.progress import progress_bar
 
-        bar = tqdm(total=int(iters), desc=solver, unit="it", leave=False)
+        bar = progress_bar(total=int(iters), desc=solver, unit="it")
 
     def callback(it, x, info):
         if truth_bm is not None:

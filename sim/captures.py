@@ -249,9 +249,9 @@ def render_captures(design, *, repeats: int = 4, seed: int = 1000, progress: boo
     order = band_pass + [i for i in range(len(steps)) if i not in band_pass]
     bar = None
     if progress:
-        from tqdm import tqdm
+        from recon.progress import progress_bar
 
-        bar = tqdm(total=len(steps), desc="calibration captures", unit="capture", leave=False)
+        bar = progress_bar(total=len(steps), desc="calibration captures", unit="capture")
     from sim import transport
 
     # The band stacks are filled in place: a list of frames and its np.stack would hold both
@@ -359,9 +359,9 @@ def comb_captures(design, period, *, repeats: int = 4, seed: int = 5000,
     level = white((v, v), wl)[0, 0]
     bar = None
     if progress:
-        from tqdm import tqdm
+        from recon.progress import progress_bar
 
-        bar = tqdm(total=wl.size * py * px, desc="comb captures", unit="capture", leave=False)
+        bar = progress_bar(total=wl.size * py * px, desc="comb captures", unit="capture")
     try:
         for l in range(wl.size):
             for a in range(py):

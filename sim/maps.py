@@ -245,9 +245,9 @@ def trace_maps(design, nodes_nm, *, seed: int = 0, degree: int = 5, grid: int | 
     fixed = np.array([[0.5, 0.75, 0.5], [0.5, 0.5, 0.75]])
     bar = None
     if progress:
-        from tqdm import tqdm
+        from recon.progress import progress_bar
 
-        bar = tqdm(total=V * N, desc="optical maps", unit="map", leave=False)
+        bar = progress_bar(total=V * N, desc="optical maps", unit="map")
     try:
         for k, vid in enumerate(views):
             gr, gc = VIEW_GRID[vid] if design.kaleidoscope else (1, 1)

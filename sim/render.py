@@ -108,9 +108,9 @@ def render_direct(design, cube, wavelengths, spp: int = 16, seed: int = 0, *,
              if design.filter_min_nm <= wl[l] <= design.filter_max_nm]
     it = bands
     if progress:
-        from tqdm import tqdm
+        from recon.progress import progress_bar
 
-        it = tqdm(bands, desc="render", unit="band")
+        it = progress_bar(bands, desc="render", unit="band", leave=True)
     for l in it:
         lo, hi = float(iv[l, 0]), float(iv[l, 1])
         resp = band_response(lo, hi)

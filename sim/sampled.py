@@ -298,9 +298,9 @@ def build_transport(design, shape, wavelengths=None, *, spp: int = 4, seed: int 
     pix, tex, w = [], [], []
     it = range(wl.size)
     if progress:
-        from tqdm import tqdm
+        from recon.progress import progress_bar
 
-        it = tqdm(it, desc="transport", unit="band")
+        it = progress_bar(it, desc="transport", unit="band", leave=True)
     for l in it:
         inside = (wl[l] >= design.filter_min_nm) and (wl[l] <= design.filter_max_nm)
         if not inside or iv[l, 1] < iv[l, 0]:
@@ -316,8 +316,8 @@ def build_transport(design, shape, wavelengths=None, *, spp: int = 4, seed: int 
                      pix, tex, w, build_seconds=time.perf_counter() - t0)
 
 
-def _save(tr: Transport, path: Path) -> None:
-    from recon.io.atomic import atomic_path
+def _save(tr: Transport, path: Path, key: str) -> None:
+    from recon.io.cache import write_npz
 
     arrays = {
         "format": np.array(_FORMAT), "design_hash": np.array(tr.design_hash),
@@ -330,22 +330,32 @@ def _save(tr: Transport, path: Path) -> None:
         arrays[f"dpix_{l}"] = np.diff(tr.pix[l], prepend=0).astype(np.int32)
         arrays[f"tex_{l}"] = tr.tex[l]
         arrays[f"w_{l}"] = tr.w[l]
-    with atomic_path(path) as tmp:
-        np.savez_compressed(tmp, **arrays)
+    write_npz(path, arrays, kind="sampled", design_hash=tr.design_hash, version=_FORMAT, key=key,
+              compress=True)
 
 
-def _load(path: Path) -> Transport:
-    with np.load(path, allow_pickle=False) as z:
-        if int(z["format"]) != _FORMAT:
-            raise ValueError("old cache format")
-        L = int(z["wavelengths"].size)
-        pix = [np.cumsum(z[f"dpix_{l}"], dtype=np.int64).astype(np.int32) for l in range(L)]
-        return Transport(str(z["design_hash"]), tuple(int(v) for v in z["shape"]),
-                         tuple(int(v) for v in z["sensor"]), z["wavelengths"].copy(),
-                         z["intervals"].copy(), int(z["spp"]), pix,
-                         [z[f"tex_{l}"].copy() for l in range(L)],
-                         [z[f"w_{l}"].copy() for l in range(L)],
-                         build_seconds=float(z["build_seconds"]), path=path)
+def _load(path: Path, design_hash: str, key: str) -> Transport | None:
+    """The entry at ``path``, or None (none, or a damaged or foreign one: removed with one
+    warning line, :func:`recon.io.cache.read_npz`)."""
+    from recon.io.cache import read_npz
+
+    z = read_npz(path, kind="sampled", design_hash=design_hash, version=_FORMAT, key=key,
+                 expect={"shape": (np.integer, 1), "sensor": (np.integer, 1),
+                         "wavelengths": (np.floating, 1), "intervals": (np.floating, 2)})
+    if z is None:
+        return None
+    L = int(z["wavelengths"].size)
+    if any(f"{p}_{l}" not in z for p in ("dpix", "tex", "w") for l in range(L)):
+        from recon.io.cache import discard
+
+        discard(path, "incomplete: a band's arrays are missing")
+        return None
+    pix = [np.cumsum(z[f"dpix_{l}"], dtype=np.int64).astype(np.int32) for l in range(L)]
+    return Transport(design_hash, tuple(int(v) for v in z["shape"]),
+                     tuple(int(v) for v in z["sensor"]), z["wavelengths"], z["intervals"],
+                     int(z["spp"]), pix, [z[f"tex_{l}"] for l in range(L)],
+                     [z[f"w_{l}"] for l in range(L)],
+                     build_seconds=float(z["build_seconds"]), path=path)
 
 
 _MEMO: dict[str, Transport] = {}
@@ -363,17 +373,15 @@ def load_or_build(design, shape, wavelengths=None, *, spp: int = 4, seed: int = 
         return _MEMO[key]
     path = cache_dir() / f"sampled-{design.hash}-{key}.npz"
     tr = None
-    if use_disk and path.exists():
-        try:
-            tr = _load(path)
+    if use_disk:
+        tr = _load(path, design.hash, key)  # None: none yet, or a damaged one (removed)
+        if tr is not None:
             STATS["loaded"] += 1
-        except (OSError, ValueError, KeyError):
-            tr = None  # a damaged or outdated file is simply rebuilt
     if tr is None:
         tr = build_transport(design, shape, wl, spp=spp, seed=seed, sampling=sampling,
                              sampler=sampler, crop=crop, progress=progress)
         if use_disk:
-            _save(tr, path)
+            _save(tr, path, key)
             tr.path = path
     _MEMO[key] = tr
     return tr

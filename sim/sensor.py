@@ -151,7 +151,7 @@ class BlurredSum:
     frequency; :func:`ccs_multiplier`).  The spectrum is kept as it is, half the size of the
     packed layout (every factor but a few stands twice there), and the products of two bands
     are added in one pass (:func:`ccs_multiply_add`).  OpenCV's real transform of a 960²
-    image took 1.4 ms where SciPy's took 2.4 (one core, ``docs/figures.md``).  The blur of
+    image took 1.4 ms where SciPy's took 2.4 (one core, ``docs/simulator.md``).  The blur of
     the image's first pixel lands ``R`` before it, wrapped to the transform's far end; the
     result is rolled back.  The result (h + 2R, w + 2R) covers the view widened by ``R``: the
     whole of its blur.  Float32 transforms: round-off ~10⁻⁷ of the peak.

@@ -20,9 +20,10 @@ sensor points and the aperture samples): the calibration captures, the scene fra
 exact operator each use their own (:data:`SEEDS`), so no figure is scored on the realisation its
 model was fitted to.
 
-Cache files: ``<cache>/maps-<design hash>-<key>.npz`` (written to a temporary file in the same
-folder and renamed; read with ``allow_pickle=False``), the key hashing the band intervals, views,
-seed and trace settings.  The cache folder is ``$KALEIDOSPEC_CACHE`` or ``~/.cache/kaleidospec``.
+Cache files: ``<cache>/maps-<design hash>-<key>.npz``, checked entries of :mod:`recon.io.cache`
+(written atomically with a checksum; one that fails its checks on load is removed with a warning
+and traced again), the key hashing the band intervals, views, seed and trace settings.  The
+cache folder is ``$KALEIDOSPEC_CACHE`` or ``~/.cache/kaleidospec``.
 """
 
 from __future__ import annotations
@@ -54,10 +55,13 @@ TRACE = {"degree": 5, "aperture_rays": 16, "tolerance_px": 0.003}
 
 
 def cache_dir() -> Path:
-    """``$KALEIDOSPEC_CACHE`` or ``~/.cache/kaleidospec`` (created on demand)."""
-    p = Path(os.environ.get("KALEIDOSPEC_CACHE") or Path.home() / ".cache" / "kaleidospec")
-    p.mkdir(parents=True, exist_ok=True)
-    return p
+    """``$KALEIDOSPEC_CACHE`` or ``~/.cache/kaleidospec`` (created on demand, checked to accept
+    new files: :func:`recon.io.cache.check_folder`)."""
+    from recon.io.cache import check_folder
+
+    # One line (exit 2 on the command line) when it cannot be written, before any long work.
+    return check_folder(os.environ.get("KALEIDOSPEC_CACHE")
+                        or Path.home() / ".cache" / "kaleidospec")
 
 
 class Transport:
@@ -335,8 +339,14 @@ def build_transport(design, intervals, *, seed: int = 0, progress: bool = False)
 _ARRAYS = ("nodes_nm", "rects", "norm", "mask", "exit", "throughput", "relay", "fit_rms")
 
 
-def _save(tr: Transport, path: Path) -> None:
-    from recon.io.atomic import atomic_path
+#: What a maps entry must hold besides the header's own list (:func:`recon.io.cache.read_npz`).
+_EXPECT = {"nodes_nm": (np.floating, 1), "band_lengths": (np.integer, 1),
+           "band_nodes": (np.integer, 1), "intervals": (np.floating, 2),
+           "views": (np.integer, 1), **{name: None for name in _ARRAYS}}
+
+
+def _save(tr: Transport, path: Path, key: str) -> None:
+    from recon.io.cache import write_npz
 
     m = tr.maps
     arrays = {name: getattr(m, name) for name in _ARRAYS}
@@ -347,25 +357,29 @@ def _save(tr: Transport, path: Path) -> None:
                   intervals=tr.intervals, build_seconds=np.array(tr.build_seconds),
                   band_lengths=np.array([b.size for b in tr.band_nodes], np.int64),
                   band_nodes=np.concatenate(tr.band_nodes).astype(np.int64))
-    with atomic_path(path) as tmp:
-        np.savez_compressed(tmp, **arrays)
+    write_npz(path, arrays, kind="maps", design_hash=tr.design_hash, version=_FORMAT, key=key,
+              compress=True)
 
 
-def _load(design, path: Path) -> Transport:
+def _load(design, path: Path, key: str) -> Transport | None:
+    """The entry at ``path``, or None (none, or a damaged or foreign one: removed with one
+    warning line, :func:`recon.io.cache.read_npz`)."""
+    from recon.io.cache import read_npz
     from sim.maps import OpticalMaps
 
-    with np.load(path, allow_pickle=False) as z:
-        if int(z["format"]) != _FORMAT or str(z["design_hash"]) != design.hash:
-            raise ValueError("another cache format or design")
-        maps = OpticalMaps(design_hash=str(z["design_hash"]),
-                           views=tuple(int(v) for v in z["views"]), degree=int(z["degree"]),
-                           has_stop=bool(z["has_stop"]), stop_half=float(z["stop_half"]),
-                           seed=int(z["seed"]), seconds=float(z["seconds"]),
-                           **{name: z[name].copy() for name in _ARRAYS})
-        splits = np.cumsum(z["band_lengths"])[:-1]
-        nodes = np.split(z["band_nodes"], splits)
-        return Transport(design, maps, z["intervals"], nodes,
-                         build_seconds=float(z["build_seconds"]), path=path)
+    z = read_npz(path, kind="maps", design_hash=design.hash, version=_FORMAT, key=key,
+                 expect=_EXPECT)
+    if z is None:
+        return None
+    maps = OpticalMaps(design_hash=design.hash,
+                       views=tuple(int(v) for v in z["views"]), degree=int(z["degree"]),
+                       has_stop=bool(z["has_stop"]), stop_half=float(z["stop_half"]),
+                       seed=int(z["seed"]), seconds=float(z["seconds"]),
+                       **{name: z[name] for name in _ARRAYS})
+    splits = np.cumsum(z["band_lengths"])[:-1]
+    nodes = np.split(z["band_nodes"], splits)
+    return Transport(design, maps, z["intervals"], nodes,
+                     build_seconds=float(z["build_seconds"]), path=path)
 
 
 _MEMO: dict[str, Transport] = {}
@@ -393,16 +407,14 @@ def load_or_build(design, wavelengths=None, *, sampling: str = "box", intervals=
         return _MEMO[key]
     path = cache_dir() / f"maps-{design.hash}-{key}.npz"
     tr = None
-    if use_disk and path.exists():
-        try:
-            tr = _load(design, path)
+    if use_disk:
+        tr = _load(design, path, key)      # None: none yet, or a damaged one (removed)
+        if tr is not None:
             STATS["loaded"] += 1
-        except (OSError, ValueError, KeyError):
-            tr = None  # a damaged or outdated file is simply traced again
     if tr is None:
         tr = build_transport(design, iv, seed=seed, progress=progress)
         if use_disk:
-            _save(tr, path)
+            _save(tr, path, key)
             tr.path = path
     _MEMO[key] = tr
     return tr

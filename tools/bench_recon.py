@@ -20,12 +20,12 @@ headline (the machine is shared: the best of several is the least disturbed).  E
 records the process CPU time (all threads).  Writes ``bench_recon.json`` and
 ``bench_recon.png`` to ``--out`` (atomically).
 
-Targets (2-core machine): (a) 50 GAP-TV iterations <= 0.25 s at a PSNR no lower than before
-the fused kernels (28.25 dB), and >= 40x faster than the plain NumPy GAP-TV; (b) 50 TwIST
+Targets (2-core machine): (a) 50 GAP-TV iterations <= 0.25 s at a PSNR no lower than the
+NumPy paths give (28.25 dB), and >= 40x faster than the plain NumPy GAP-TV; (b) 50 TwIST
 iterations (tau = 0.15) <= 2 s at >= 35.5 dB with peak memory <= 1 GB.  On (b) TwIST also runs
 with the authors' settings (lambda1 = 1e-4, 10 Chambolle iterations per prox) for comparison
 (``--no-reference`` skips it, and the plain GAP-TV on (a)).  ``KALEIDOSPEC_KERNELS=numpy``
-runs the NumPy paths of recon instead of the kernels (the "before" figures).
+runs the NumPy paths of recon instead of the kernels.
 
 Usage: python3 tools/bench_recon.py [--quick] [--out DIR] [--iters 50] [--solvers a,b]
                                     [--configs a,b] [--repeat 3] [--no-reference]
@@ -60,9 +60,8 @@ SETTINGS = {
     "twist": {"tau": 0.15},
     "fista-tv": {"tau": 0.15},
 }
-#: TV weight of the plain GAP-TV on (a): the best of nine tried at 50 iterations (0.02, 0.05,
-#: 0.07, 0.1, 0.12, 0.15, 0.2, 0.3, 0.5: 19.04, 23.84, 24.98, 25.42, 25.45, 25.36, 25.14,
-#: 24.74, 24.17 dB).
+#: TV weight of the plain GAP-TV on (a): the best of nine at 50 iterations (docs/speed.md), so
+#: that the reference is not handicapped by its weight.
 REFERENCE_WEIGHT = 0.12
 # The authors' TwIST settings (TwIST.m's lambda1 = 1e-4, ~10 Chambolle iterations per prox)
 # on (b), to compare with the defaults (lambda1 = 1e-2, 2 warm Chambolle iterations).
@@ -138,9 +137,8 @@ def run_one(label, name, kw, op, g, truth, iters, repeat):
     def cb(it, x, info):
         curve.append({"iteration": it, "seconds": info["seconds"], "psnr": _psnr(x, truth)})
 
-    # Peak memory from the callback run: tracemalloc hooks every allocation and slowed the
-    # TwIST solve of (b) by a third (CPU 20.5 s against 15.0 s), so the headline runs below
-    # are timed without it.
+    # Peak memory from the callback run: tracemalloc hooks every allocation and slows a solve
+    # down, so the headline runs below are timed without it.
     tracemalloc.start()
     solve(name, op, g, iters=iters, callback=cb, **kw)
     _, peak = tracemalloc.get_traced_memory()
@@ -163,8 +161,8 @@ def run_one(label, name, kw, op, g, truth, iters, repeat):
 
 
 def _kernels():
-    """:mod:`recon.kernels`, or None in a checkout from before it (for the "before" figures:
-    this script copied into such a checkout's tools/ runs against it)."""
+    """:mod:`recon.kernels`, or None in a checkout without it (this script copied into such a
+    checkout's tools/ runs against its NumPy-only solvers)."""
     try:
         from recon import kernels
     except ImportError:

@@ -21,8 +21,8 @@ For each preset, from an empty cache folder:
   estimated without the references' own noise as mean((c − a)(c − b)) over the window (a, b
   the two renders); a series shows it settle while the renders' noise falls as 1/√spp.  The
   target is a per-pixel error at most half the sensor's noise σ = √(N̄e + σ_read²).  The Monte
-  Carlo transport with 4 i.i.d. rays per pixel and band (what frames used to be gathered
-  from) is scored the same way, for scale.
+  Carlo transport with 4 i.i.d. rays per pixel and band (:mod:`sim.sampled`) is scored the
+  same way, for scale.
 - ``--spawn``: how far one sensor point's aperture rays spread on the mask and the diffuser
   when Mitsuba's ``spawn_ray`` continues them, against :func:`sim.rays.continue_ray`.
 

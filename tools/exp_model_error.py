@@ -21,10 +21,9 @@ least-squares gains, so that neither the radiometry nor the exposure counts.  Ro
   trace: what a perfect mask calibration would give; ``tools/exp_views.py --exact-masks``).
 
 The rows are where the model error lies, not what a reconstruction gains: on ``paper`` lower
-model errors of the calibrated masks did not reconstruct better (``docs/figures.md``, "Where
-the shifted model's error lies").  The fitted gains also hide any error of the calibration's
-own: the flat-field gains made `paper`'s model 5–6 % too dark until this was found, which no
-figure here showed.  Uses the design's cached calibration (made if missing).
+model errors of the calibrated masks did not reconstruct better (``docs/calibration.md``,
+"What is left of the paper gap").  The fitted gains also hide any error of the calibration's
+own gains.  Uses the design's cached calibration (made if missing).
 
 Usage::
 

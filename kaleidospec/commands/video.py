@@ -59,7 +59,7 @@ def video(
                                         "own)."),
     prior: str = prior_option(),
     temporal: float = typer.Option(0.0, "--temporal", help="Weight of the temporal TV term "
-                                   "|f_t - f_(t-1)|_1 (0: off; gap-tv only)."),
+                                   "|f_t - f_(t-1)|_1 (0: off), added to the prior."),
     speed: Optional[float] = typer.Option(None, "--speed", help="Colour wheel speed, deg/s "
                                           "(default 36)."),
     subframes: int = typer.Option(1, "--subframes", help="Sub-frames averaged per exposure "

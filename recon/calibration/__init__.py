@@ -31,7 +31,8 @@ from recon.calibration.operator import (check_design, measurements, operator_fro
                                         read_measurements)
 from recon.calibration.radiometry import apply_gains, fit_gains, flat_field_gains, patch_spectra
 from recon.calibration.store import (Calibration, build_calibration, calibration_path,
-                                     load_cached, load_calibration, save_calibration)
+                                     load_cached, load_calibration, save_cached,
+                                     save_calibration)
 from recon.calibration.views import VIEW_FLIPS, VIEW_GRID, find_view_boxes
 
 __all__ = [
@@ -42,6 +43,6 @@ __all__ = [
     "load_cached", "load_calibration", "mask_images", "measure_leads", "measurements", "noise_rms",
     "normalise_offsets", "normalise_offsets_phase", "operator_from_calibration",
     "patch_spectra", "photon_transfer", "read_measurements", "refine_homography",
-    "save_calibration", "to_view_coordinates", "unmask", "view_homographies", "view_masks",
-    "with_leads",
+    "save_cached", "save_calibration", "to_view_coordinates", "unmask", "view_homographies",
+    "view_masks", "with_leads",
 ]

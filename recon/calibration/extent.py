@@ -4,10 +4,10 @@ The line captures fix where a scene column lands in every band (the offsets :mat
 whole columns removed per view), and the shifted model puts view column :math:`x` of band
 :math:`l` on box column :math:`x + o_{k,l}`: view column 0 is the first box column the bluest
 band can reach.  But a view's mask region need not begin there.  On the paper's design the
-left, top and bottom views' mask images hold light 12–19 px *before* their offsets in every
-band (from the box's first column in the bluest bands, which the box cuts): those views code
-scene columns that a view image starting at column 0 leaves out, and the model predicts none
-of that light (up to 55 % model error in those columns).
+left, top and bottom views' mask images hold light well *before* their offsets in every band
+(from the box's first column in the bluest bands, which the box cuts): those views code scene
+columns that a view image starting at column 0 leaves out, and the model would predict none
+of that light (docs/calibration.md gives the leads measured).
 
 The *lead* of view :math:`k` is how far its light begins before the offsets,
 

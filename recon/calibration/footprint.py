@@ -43,10 +43,9 @@ from recon.errors import InputError
 __all__ = ["FOOTPRINT_FLOOR", "comb_period", "line_anchor", "predicted_positions",
            "decode_band", "footprint_matrix"]
 
-#: Weights below this fraction of the band's white level are dropped.  Measured on `small`,
-#: 5 views (``tools/exp_calibration_gap.py --views 5 --floor F``; natural / ColorChecker): all
-#: 18.1 M weights 26.39 / 35.67 dB, above 0.2 % 6.4 M and 26.28 / 35.35 dB, above 0.5 % 3.5 M
-#: and 26.15 / 34.89 dB.
+#: Weights below this fraction of the band's white level are dropped: a third of the weights
+#: for a loss the reconstructions barely show (docs/calibration.md, "The footprint model's
+#: settings").
 FOOTPRINT_FLOOR = 0.002
 #: Pixels whose summed comb response is below this fraction of the white level keep the
 #: geometric window centre (their centroid is noise).
@@ -65,11 +64,8 @@ ceil, \qquad P_y = \max(3, \lceil 2 + R
 ceil),
 
     :math:`R` the Airy first-zero radius (px); rows need a texel of margin for the side views'
-    shear.  Measured with ``tools/exp_calibration_gap.py --views 5 [--period PY,PX] [--set
-    band_step_nm=50]`` (natural / ColorChecker, exact operator in brackets): on `small` (25 nm
-    bands, :math:`s = 2.7`, period (3, 5)) 26.28 / 35.35 dB (25.88 / 33.79), with (2, 4)
-    25.59 / 32.04 dB; with 50 nm bands (:math:`s = 4.7`, period (3, 7)) 28.88 / 37.90 dB
-    (28.53 / 36.46), with (3, 5) 27.29 / 32.73 dB.
+    shear.  A shorter period lets neighbouring texels' footprints overlap and costs the
+    reconstructions (docs/calibration.md, "The footprint model's settings").
     """
     s, r = float(smear_px), float(airy_radius_px)
     if not (np.isfinite(s) and np.isfinite(r)) or s < 0 or r < 0:

@@ -19,13 +19,10 @@ to pixels: by default with a total-variation-regularised deconvolution
 (Tikhonov) filter alone (:func:`wiener_deconvolve`), or with Richardson–Lucy
 (:func:`deconvolve`: the kernels of :mod:`recon.kernels.deconvolve`,
 ``skimage.restoration.richardson_lucy`` as their reference).  Richardson–Lucy converges slowly
-where the blur is widest: after its 30 iterations the two reddest quarters of the ``paper``
-design's bands keep 6.5 and 11.8 % error against the unblurred mask images (4.6 and 9.0 %
-after 100), where the filter at its default balance leaves 3.6 and 6.5 %.  The filter must
-trade the capture noise it lets through against the ringing and smoothing it leaves at the
-cells' edges; the TV term takes the noise off the flat cells and keeps their edges: five
-``paper`` views reconstruct the natural scene to 26.29 dB with its masks against 25.61 dB with
-the filter's (``docs/figures.md``).
+where the blur is widest (the reddest bands).  The filter must trade the capture noise it lets
+through against the ringing and smoothing it leaves at the cells' edges; the TV term takes the
+noise off the flat cells and keeps their edges, and the reconstructions from its masks are the
+better ones (``docs/calibration.md``).
 """
 
 from __future__ import annotations
@@ -46,14 +43,13 @@ DECONVOLUTIONS = ("tv", "wiener", "richardson-lucy")
 #: :math:`\lambda` of :func:`wiener_deconvolve` on crops scaled to a unit maximum.  The mask
 #: images' own error is least near 10⁻³ on ``paper`` (4 averaged captures per band), but a
 #: reconstruction prefers them smoother: the capture noise the filter lets through is what
-#: costs most there (see ``docs/figures.md``, "The mask images' deconvolution").
+#: costs most there.
 WIENER_BALANCE = 1e-2
 
 #: :math:`\mu` of :func:`tv_deconvolve` (crops scaled to a unit maximum) and its FISTA
-#: iterations from the Wiener filter's result.  Chosen on five ``paper`` views and the natural
-#: scene: μ = 3·10⁻³ / 10⁻² / 3·10⁻² reconstruct to 26.06 / 26.29 / 23.77 dB (the outer two
-#: with a float64 prototype of this function; too much TV lowers the contrast of the 2×2-pixel
-#: cells); ``docs/figures.md``.
+#: iterations from the Wiener filter's result.  Chosen by the reconstructions of five ``paper``
+#: views of the natural scene: too little TV lets the capture noise through, too much lowers
+#: the contrast of the 2×2-pixel cells.
 TV_WEIGHT = 1e-2
 TV_ITERATIONS = 40
 
@@ -224,8 +220,7 @@ def view_masks(white_captures, view_boxes, tap_start, tap_weights, view_width: i
         :math:`W_v`; every kernel must fit: :math:`s + j + W_v \le W_m`.
     dark, airy_radius, rl_iterations, percentile, deconvolution, balance
         As for :func:`mask_images`; the deconvolution is the Wiener filter by default here, the
-        one this model was measured with (``docs/figures.md``: 22.11 dB, five ``paper`` views),
-        the TV deconvolution is not measured with it yet.
+        one this model was measured with; the TV deconvolution is not measured with it.
     rounds : int
         Alternations between the masks and the per-band scales (>= 1).
     iterations : int
@@ -393,8 +388,7 @@ def tv_deconvolve(views: np.ndarray, radii: np.ndarray, weight: float = TV_WEIGH
     throughput: flat cells with sharp edges, what TV favours.  The Wiener filter treats it as
     white noise over a white signal, so it must choose between the capture noise it lets
     through and the ringing and smoothing it leaves at the cells' edges; the TV term removes
-    noise on the flat cells without blurring the edges back (``docs/figures.md``, "The mask
-    images' deconvolution").
+    noise on the flat cells without blurring the edges back.
 
     Parameters
     ----------
@@ -529,8 +523,7 @@ def deconvolve(views: np.ndarray, radii: np.ndarray, iterations: int = 30,
         Where to write the result; may be ``views`` (deconvolved in place, crop by crop: the
         calibration holds no second stack).  Default: a new float32 array.
     progress : bool
-        A progress bar over the crops on stderr (tqdm; 130 crops and ~30 s for five paper
-        views).
+        Report progress over the crops on stderr (:func:`recon.progress.progress_bar`).
 
     Returns
     -------
@@ -575,13 +568,13 @@ def _crop_by_crop(views, radii, out, progress, solve, *, support: float = 2.0,
 def _output_and_bar(views, out, progress: bool, desc: str):
     """``out`` for (K, L, h, w) ``views`` (a new float32 stack when None; refused when its
     shape differs) and a progress bar over the crops, silent unless ``progress``."""
-    from tqdm import tqdm
+    from recon.progress import progress_bar
 
     out = np.empty(views.shape, dtype=np.float32) if out is None else out
     if out.shape != views.shape:
         raise InputError(f"out has shape {out.shape}, views {views.shape}")
-    bar = tqdm(total=views.shape[0] * views.shape[1], desc=desc, unit="crop", leave=False,
-               disable=not progress)
+    bar = progress_bar(total=views.shape[0] * views.shape[1], desc=desc, unit="crop",
+                       show=progress)
     return out, bar
 
 

@@ -635,16 +635,69 @@ def load_calibration(path) -> Calibration:
         raise InputError(f"{npz}: {exc}") from None
 
 
+#: What a cached calibration must hold (:func:`recon.io.cache.read_npz`'s ``expect``).
+_EXPECT = {"view_boxes": (np.integer, 2), "homographies": (np.floating, 3),
+           "mask_images": (np.float32, 4), "offsets": (np.floating, 2),
+           "gains": (np.floating, 1), "wavelengths": (np.floating, 1)}
+
+
+def save_cached(cache_dir, cal: Calibration) -> Path:
+    """Write ``cal`` into the cache folder (:func:`calibration_path` of its design hash): the
+    ``.npz`` a checked cache entry (:func:`recon.io.cache.write_npz`: a checksum, the design
+    hash, :func:`code_version` and the sidecar's metadata inside), then the JSON sidecar, each
+    atomically.  Returns the ``.npz`` path."""
+    from recon.io import cache
+    from recon.io.atomic import write_text
+
+    if not isinstance(cal, Calibration) or cal.design_hash is None:
+        raise InputError("only a Calibration with its design hash is cached")
+    npz, side = _paths(calibration_path(cache_dir, cal.design_hash))
+    cache.write_npz(npz, {name: getattr(cal, name) for name in ARRAY_FIELDS
+                          + OPTIONAL_ARRAY_FIELDS if getattr(cal, name) is not None},
+                    kind="calibration", design_hash=cal.design_hash, version=code_version(),
+                    meta=cal.metadata())
+    write_text(side, json.dumps(cal.metadata(), indent=2, sort_keys=True) + "\n")
+    return npz
+
+
+def is_cached(cache_dir, design_hash) -> bool:
+    """Whether the cache holds an entry for the design that :func:`load_cached` will most
+    likely load: the sidecar there, the ``.npz`` readable with this design's hash and
+    :func:`code_version` in its header (its arrays and checksum are checked on load)."""
+    from recon.io.cache import read_header
+
+    npz, side = _paths(calibration_path(cache_dir, design_hash))
+    return side.is_file() and read_header(npz, kind="calibration",
+                                          design_hash=check_hash(design_hash),
+                                          version=code_version()) is not None
+
+
 def load_cached(cache_dir, design_hash) -> Calibration | None:
-    """The cached calibration of a design, or ``None`` when there is none yet."""
-    p = calibration_path(cache_dir, design_hash)
-    if not p.is_file():
+    """The cached calibration of a design, or ``None`` when there is none yet, or when the entry
+    fails a check (:func:`recon.io.cache.read_npz`: cut short, garbled, another design's or code
+    version's, written without a checksum, a missing or mismatched sidecar): that entry is
+    removed with one warning line, and the caller calibrates again."""
+    from recon.io import cache
+
+    npz, side = _paths(calibration_path(cache_dir, design_hash))
+    got = cache.read_npz(npz, kind="calibration", design_hash=check_hash(design_hash),
+                         version=code_version(), expect=_EXPECT, meta=True, companions=[side])
+    if got is None:
         return None
-    cal = load_calibration(p)
-    if cal.design_hash != design_hash:
-        raise InputError(f"{p}: holds the calibration of design {cal.design_hash!r}, "
-                         f"not {design_hash!r}")
-    return cal
+    arrays, meta = got
+    try:
+        side_meta = read_json_object(side)
+        if side_meta.get("design_hash") != design_hash:
+            raise InputError("its sidecar is missing or names another design")
+        meta = meta if isinstance(meta, dict) else {}
+        return Calibration(view_ids=meta["view_ids"], cube_shape=meta["cube_shape"],
+                           design_hash=meta["design_hash"], captures=meta["captures"] or [],
+                           created=str(meta["created"]),
+                           **{n: a for n, a in arrays.items() if n in ARRAY_FIELDS
+                              + OPTIONAL_ARRAY_FIELDS})
+    except (InputError, KeyError, TypeError) as exc:
+        cache.discard(npz, f"not a valid calibration: {exc}", companions=[side])
+        return None
 
 
 def _array(a, name, dtype, shape, ndim=None) -> np.ndarray:

@@ -179,9 +179,17 @@ def data_misfit(op: LinearOperator, g: np.ndarray, x: np.ndarray) -> tuple[float
     return 0.5 * float(np.vdot(r, r)), r
 
 
-def objective(op: LinearOperator, g: np.ndarray, x: np.ndarray, tau: float,
-              isotropic: bool = True) -> float:
-    r""":math:`\tfrac12\|g-Hx\|_2^2 + \tau\,\mathrm{TV}(x)` (one forward)."""
+def objective(op: LinearOperator, g: np.ndarray, x: np.ndarray, tau: float | None = None,
+              isotropic: bool = True, prior=None) -> float | None:
+    r""":math:`\tfrac12\|g-Hx\|_2^2 + \tau\,\mathrm{TV}(x)` (one forward), or with
+    ``prior`` :math:`\tfrac12\|g-Hx\|_2^2 + \varphi(x)` (None where the prior has no value)."""
+    if prior is not None:
+        if tau is not None:
+            raise InputError("objective: give tau (TV) or prior, not both")
+        value = prior_value(check_prior(prior), x)
+        return None if value is None else data_misfit(op, g, x)[0] + value
+    if tau is None:
+        raise InputError("objective: give tau (the TV weight) or a prior")
     return data_misfit(op, g, x)[0] + float(tau) * tv_norm(x, isotropic)
 
 

@@ -1,34 +1,41 @@
-"""A tqdm progress bar as a solver callback (for the command line).
+"""A solver callback that reports progress (for the command line).
 
 Shows the iteration, the objective (when the solver reports one), the relative change and,
 when a ground truth is given, the PSNR of the current iterate (:func:`recon.metrics.psnr`
-convention: both cubes divided by the truth's maximum, peak 1).
+convention: both cubes divided by the truth's maximum, peak 1): a ``tqdm`` bar on a terminal,
+one line when the solve ends elsewhere (:mod:`recon.progress`).
 """
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 
 from recon.errors import InputError
+from recon.progress import Silent, StepLine, is_terminal
 
 __all__ = ["ProgressCallback"]
 
 
 class ProgressCallback:
-    """Solver callback that drives a ``tqdm`` bar; use as a context manager (or call close()).
+    """Solver callback that drives a progress report (:mod:`recon.progress`); use as a context
+    manager (or call close()).
 
     Parameters
     ----------
     total : int
-        The number of iterations (the bar's length).
+        The number of iterations (the bar's length; a solver's stopping rule may end sooner).
     truth : ndarray, shape (L, H, W), optional
         Band-major ground truth; adds the PSNR of every iterate (costs one pass over the cube).
     desc : str
         The bar's label.
     disable : bool
         No output (e.g. ``--quiet``); the callback still records ``history``.
+    file : stream, optional
+        Where to write (stderr by default); a bar on a terminal, one line at the end elsewhere.
     **tqdm_kw
-        Passed to :class:`tqdm.tqdm` (``file=``, ``leave=``, ...).
+        Passed to :class:`tqdm.tqdm` on a terminal (``leave=``, ...).
 
     Attributes
     ----------
@@ -37,9 +44,7 @@ class ProgressCallback:
     """
 
     def __init__(self, total: int, truth: np.ndarray | None = None, desc: str = "reconstruct",
-                 disable: bool = False, **tqdm_kw):
-        from tqdm.auto import tqdm
-
+                 disable: bool = False, file=None, **tqdm_kw):
         if truth is not None:
             truth = np.asarray(truth)
             if truth.ndim != 3:
@@ -51,7 +56,14 @@ class ProgressCallback:
         else:
             self._truth = None
         self.history: list[dict] = []
-        self.bar = tqdm(total=int(total), desc=desc, disable=disable, unit="it", **tqdm_kw)
+        if disable:
+            self.bar = Silent(total=int(total))
+        elif is_terminal(sys.stderr if file is None else file):
+            from tqdm.auto import tqdm
+
+            self.bar = tqdm(total=int(total), desc=desc, unit="it", file=file, **tqdm_kw)
+        else:
+            self.bar = StepLine(total=int(total), desc=desc, unit="it", file=file)
 
     def psnr(self, x: np.ndarray) -> float:
         """PSNR of ``x`` against the truth, peak = max(truth)."""

@@ -24,11 +24,17 @@ def cli(argv, capsys):
 
 @pytest.fixture(scope="module")
 def done(tmp_path_factory):
+    import contextlib
+    import io
+
     out = tmp_path_factory.mktemp("run") / "res"
-    with pytest.raises(SystemExit) as exc:
+    err = io.StringIO()
+    with pytest.raises(SystemExit) as exc, contextlib.redirect_stderr(err):
         main(["run", "--scene", "colorchecker", "--out", str(out), "--views", "1,2", "--iters",
               "10", "--no-progress", *SET])
     assert exc.value.code in (0, None)
+    # --no-progress: not a line of progress (a log would get one per finished step).
+    assert err.getvalue() == ""
     return out
 
 

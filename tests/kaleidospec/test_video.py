@@ -216,6 +216,24 @@ def test_summary_and_video(sequence):
     assert frames.shape[0] == N_FRAMES and frames.shape[1:3] == (H, 2 * W)
 
 
+def test_temporal_term_with_any_solver_records_the_prior(sequence):
+    """The temporal term goes with FISTA too (as a prior around TV); each frame's metrics say
+    which prior and which temporal weight it was solved with."""
+    from kaleidospec.video import VideoLayout, reconstruct_segment
+
+    out, _, settings = sequence
+    lay = VideoLayout(out)
+    for i in (2, 3):
+        lay.cube(i).unlink(missing_ok=True)
+        lay.metrics(i).unlink(missing_ok=True)
+    reconstruct_segment(out, 2, 4, dict(settings, solver="fista-tv", iters=3, cold_iters=3,
+                                         mu=0.05, prior="tv"))
+    m = [json.loads(lay.metrics(i).read_text()) for i in (2, 3)]
+    assert [f["prior"] for f in m] == ["tv", "tv"]
+    assert [f["mu"] for f in m] == [0.0, 0.05]       # the cold first frame has no reference
+    assert all(np.isfinite(f["psnr"]) for f in m)
+
+
 def test_temporal_term():
     from recon.operators import kaleidoscope_cassi
     from recon.solvers import solve
@@ -329,20 +347,19 @@ def test_other_settings_in_the_same_folder_are_refused(tmp_path):
         run_video("colorwheel", out, frames=2, progress=False)
 
 
-def test_default_solver_follows_the_calibrated_model(tmp_path):
-    """Where the calibration carries the lens's PSF (``paper``) the default solver is FISTA-TV:
-    the temporal term, GAP-TV's only, is then refused by name; on ``small`` GAP-TV stays."""
+def test_default_solver_follows_the_calibrated_model():
+    """Where the calibration carries the lens's PSF (``paper``) the default solver is FISTA-TV,
+    as with the exact operator; on ``small`` GAP-TV stays."""
     from kaleidospec.calibrate import deconvolution_radii
-    from kaleidospec.video import run_video
+    from kaleidospec.video import default_solver
     from sim.design import get_design
 
     assert deconvolution_radii(get_design("small")) is None
     radii = deconvolution_radii(get_design("paper"))
     assert radii is not None and radii.min() > 1.0
-    with pytest.raises(InputError, match="gap-tv solver only"):
-        run_video("colorwheel", tmp_path / "p", design="paper", frames=2, temporal=0.1,
-                  progress=False)
-    assert not (tmp_path / "p").exists()
+    assert default_solver(get_design("paper")) == "fista-tv"
+    assert default_solver(get_design("small")) == "gap-tv"
+    assert default_solver(get_design("small"), "oracle") == "fista-tv"
 
 
 def test_every_segment_takes_the_first_frames_weight(sequence, tmp_path):

@@ -8,8 +8,8 @@ import pytest
 
 from recon.calibration.geometry import apply_homography
 from recon.calibration.store import (ARRAY_FIELDS, JSON_FIELDS, Calibration, build_calibration,
-                                     calibration_path, load_cached, load_calibration,
-                                     save_calibration)
+                                     calibration_path, is_cached, load_cached,
+                                     load_calibration, save_cached, save_calibration)
 from recon.errors import InputError
 
 
@@ -58,21 +58,38 @@ def test_round_trip(tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["cal.json", "cal.npz"]
 
 
-def test_cache(tmp_path):
+def test_cache(tmp_path, capsys):
     rng = np.random.default_rng(2)
     cal = _cal(rng)
     p = calibration_path(tmp_path, cal.design_hash)
     assert p.parent == tmp_path and cal.design_hash in p.name
     assert load_cached(tmp_path, cal.design_hash) is None
-    save_calibration(p, cal)
-    assert load_cached(tmp_path, cal.design_hash).design_hash == cal.design_hash
+    assert not is_cached(tmp_path, cal.design_hash)
+    assert save_cached(tmp_path, cal) == p
+    assert is_cached(tmp_path, cal.design_hash)
+    back = load_cached(tmp_path, cal.design_hash)
+    assert back.design_hash == cal.design_hash and back.created == cal.created
+    np.testing.assert_array_equal(back.mask_images, cal.mask_images)
+    # The cached pair is an ordinary calibration file as well (what a video's workers load).
+    np.testing.assert_array_equal(load_calibration(p).offsets, cal.offsets)
+    assert capsys.readouterr().err == ""
     with pytest.raises(InputError, match="plain token"):
         calibration_path(tmp_path, "../evil")
-    # A file under one hash's name that holds another design is refused.
+    # A file under one hash's name that holds another design is foreign: removed with one
+    # warning line (the caller calibrates again), never loaded.
     other = _cal(rng, design_hash="ffff")
+    npz = save_cached(tmp_path, other)
+    npz.rename(calibration_path(tmp_path, "eeee"))
+    npz.with_suffix(".json").rename(calibration_path(tmp_path, "eeee").with_suffix(".json"))
+    assert not is_cached(tmp_path, "eeee")
+    assert load_cached(tmp_path, "eeee") is None
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and "calibration-eeee-" in err[0] and "'ffff'" in err[0]
+    assert not list(tmp_path.glob("calibration-eeee-*"))
+    # A calibration written without the cache's header and checksum is not trusted either.
     save_calibration(calibration_path(tmp_path, "eeee"), other)
-    with pytest.raises(InputError, match="design 'ffff'"):
-        load_cached(tmp_path, "eeee")
+    assert load_cached(tmp_path, "eeee") is None
+    assert "no cache header" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("missing", ARRAY_FIELDS)
