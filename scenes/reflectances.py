@@ -14,8 +14,8 @@ structure of a real one:
   illumination falloff and surface orientation do;
 * the illuminant (D65 by default) multiplies the reflectance.
 
-Its band Gram matrix has many more than three significant eigenvalues (the tests check the
-numerical rank on the paper's bands).  Everything derives from ``seed``: the same arguments
+Its band Gram matrix has many more than three significant eigenvalues
+(``tests/scenes/test_reflectances.py`` checks the singular values on 28 bands).  Everything derives from ``seed``: the same arguments
 give the same cube.
 """
 

@@ -15,7 +15,10 @@ Registering a prior::
 
 A factory receives a :class:`PriorContext` (the cube's shape and dtype, the strength the caller
 chose or None, the solver, the measurement's rms noise and the number of views where known,
-threads) and the caller's extra options, and returns a :class:`Prior`.
+threads) and the caller's extra options, and returns a :class:`Prior`.  A prior registered
+here for the command line is also listed, with its ``--help`` line, in
+``kaleidospec.commands.prior_option.PRIOR_CHOICES`` (``--help`` must not import NumPy; a test
+keeps the two lists equal).
 """
 
 from __future__ import annotations
