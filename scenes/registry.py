@@ -23,7 +23,7 @@ _CUBE_SUFFIXES = {".exr", ".npz", ".npy", ".mat"}
 
 
 def _builders() -> dict[str, Callable[..., np.ndarray]]:
-    from scenes import calibration, colorchecker, colorwheel, natural, resolution
+    from scenes import calibration, colorchecker, colorwheel, natural, reflectances, resolution
 
     return {
         "colorchecker": colorchecker.colorchecker,
@@ -31,6 +31,7 @@ def _builders() -> dict[str, Callable[..., np.ndarray]]:
         "siemens_star": resolution.siemens_star,
         "bars": resolution.bars,
         "natural": natural.natural,
+        "reflectances": reflectances.reflectance_mosaic,
         "checkerboard": calibration.checkerboard,
         "white": calibration.white,
         "line": calibration.line,

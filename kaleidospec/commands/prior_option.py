@@ -10,7 +10,8 @@ from __future__ import annotations
 import typer
 
 #: The priors of :data:`recon.priors.PRIORS`, with the line ``--help`` shows for each.
-PRIOR_CHOICES = {"tv": "total variation, spatial, per band"}
+PRIOR_CHOICES = {"tv": "total variation, spatial, per band",
+                 "subspace-tv": "k spectral basis vectors from the iterate, TV on their images"}
 
 #: The default prior (:data:`recon.priors.DEFAULT_PRIOR`).
 DEFAULT = "tv"

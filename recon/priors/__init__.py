@@ -160,3 +160,10 @@ def _check_options(name: str, factory, options: dict) -> None:
     unknown = sorted(k for k in options if k not in params or k == "ctx")
     if unknown:
         raise InputError(f"prior {name!r} has no option(s) {', '.join(unknown)}")
+
+
+# Priors of their own modules, registered here so that every name is known once recon.priors is.
+from recon.priors.subspace import make_subspace_tv  # noqa: E402
+
+register_prior("subspace-tv", make_subspace_tv,
+               "k spectral basis vectors re-estimated from the iterate, TV on their images")

@@ -1,0 +1,39 @@
+"""The subspace priors' kernels (recon.kernels.subspace) against NumPy."""
+
+import numpy as np
+import pytest
+
+from recon import kernels
+
+pytestmark = pytest.mark.skipif(not kernels.enabled(), reason="Numba kernels switched off")
+
+
+def test_gram_project_expand():
+    from recon.kernels import subspace as ks
+
+    rng = np.random.default_rng(0)
+    v = rng.random((9, 3 * 4096 + 17)).astype(np.float32)   # blocks with a ragged last one
+    partial = np.empty((ks.blocks(v.shape[1]), 9, 9))
+    ks.gram(v, partial)
+    m = v.astype(np.float64)
+    np.testing.assert_allclose(partial.sum(axis=0), m @ m.T, rtol=1e-6)
+    e = np.linalg.qr(rng.standard_normal((9, 4)))[0].astype(np.float32)
+    z = np.empty((4, v.shape[1]), np.float32)
+    ks.project(e, v, z)
+    np.testing.assert_allclose(z, e.T @ v, rtol=1e-5, atol=1e-5)
+    x = np.empty_like(v)
+    ks.expand(e, z, x)
+    np.testing.assert_allclose(x, e @ z, rtol=1e-5, atol=1e-5)
+
+
+def test_jacobi_eigh():
+    from recon.kernels import subspace as ks
+
+    rng = np.random.default_rng(1)
+    a = rng.standard_normal((28, 28))
+    a = a @ a.T
+    w, v = ks.jacobi_eigh(a.copy(), 1e-12, 50)
+    w_ref = np.linalg.eigvalsh(a)
+    np.testing.assert_allclose(np.sort(w), w_ref, rtol=1e-9, atol=1e-9 * w_ref.max())
+    np.testing.assert_allclose(v.T @ v, np.eye(28), atol=1e-10)
+    np.testing.assert_allclose(v @ np.diag(w) @ v.T, a, atol=1e-9 * np.abs(a).max())
