@@ -25,8 +25,8 @@ import numpy as np
 
 from recon.errors import InputError
 from scenes._common import check_shape, wavelengths_or_default
-from sim.spectra import illuminant as _illuminant
-from sim.spectra import sample_sd
+from scenes.spectra import illuminant as _illuminant
+from scenes.spectra import sample_sd
 
 __all__ = ["measured_reflectances", "reflectance_mosaic"]
 

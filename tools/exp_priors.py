@@ -103,7 +103,7 @@ def design_rows(design_name: str, name: str, folder: Path, priors, counts, args)
                                          frame_measurements, measurement_noise, normalised,
                                          tv_weight)
     from recon.app import reconstruct
-    from sim.design import get_design
+    from sim.optics.design import get_design
 
     design = instrument.design_for_views(get_design(design_name), max(counts))
     frame, meta, _, wl = instrument.render_scene(str(folder), design, seed=0)
