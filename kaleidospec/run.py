@@ -46,7 +46,7 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
         iters: int = DEFAULTS["iters"], tol=DEFAULTS["tol"], tau=None, seed: int = 0,
         progress: bool = True, cache_dir=None, oracle: bool = True, figures: bool = True,
         raw=None, widen: bool = True, log=None, model: str | None = None,
-        prior: str = "tv") -> dict:
+        prior: str = "subspace-tv") -> dict:
     """Render ``scene``, calibrate (cached), reconstruct for every view count, write a report.
 
     Everything is written into a fresh temporary folder beside ``out_dir`` that replaces
@@ -66,7 +66,8 @@ def run(scene, design, out_dir, *, views=(1, 2, 3, 5, 9), solver: str = DEFAULTS
     solver, iters, tol, tau, prior, seed
         Reconstruction settings (:func:`kaleidospec.reconstruct.solve_views`: at most ``iters``
         iterations, fewer once the cube's relative change falls below ``tol``; the prior a
-        :data:`recon.priors.PRIORS` name, ``tau`` its weight) and the sensor-noise seed.
+        :data:`recon.priors.PRIORS` name, ``subspace-tv`` by default as on the command line,
+        ``tau`` its weight) and the sensor-noise seed.
     oracle : bool
         Also reconstruct with the exact operator (for the "within 1 dB" comparison).
     figures : bool

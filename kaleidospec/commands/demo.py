@@ -14,7 +14,7 @@ from pathlib import Path
 
 import typer
 
-from kaleidospec.commands.prior_option import check_prior, prior_option
+from kaleidospec.commands.prior_option import RUN_DEFAULT, check_prior, prior_option
 
 DEFAULT_SCENE = "natural"
 DEFAULT_VIEWS = "1,2,3,5"
@@ -26,7 +26,7 @@ def demo(
     model: str = typer.Option(DEFAULT_MODEL, "--model", help="Calibrated forward model: "
                               "footprint (the default here) or shifted (see kaleidospec run "
                               "--help)."),
-    prior: str = prior_option(),
+    prior: str = prior_option(RUN_DEFAULT),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress bars."),
 ) -> None:
     """Render the natural scene with the small design, calibrate, reconstruct, report."""

@@ -13,17 +13,26 @@ import typer
 PRIOR_CHOICES = {"tv": "total variation, spatial, per band",
                  "subspace-tv": "k spectral basis vectors from the iterate, TV on their images"}
 
-#: The default prior (:data:`recon.priors.DEFAULT_PRIOR`).
+#: The library's default prior (:data:`recon.priors.DEFAULT_PRIOR`): ``reconstruct`` (single-view
+#: CASSI files) and ``video`` keep it.
 DEFAULT = "tv"
+#: The default of ``run`` and ``demo`` (kaleidoscope frames through the calibrated model):
+#: the prior that beats TV by at least 1 dB at no more than 5 times its time on the eight CAVE
+#: development scenes there (docs/priors.md); :func:`kaleidospec.run.run` has the same default.
+RUN_DEFAULT = "subspace-tv"
 
-PRIOR_HELP = ("Prior of the reconstruction: "
-              + "; ".join(f"{k} = {v}" for k, v in PRIOR_CHOICES.items())
-              + f".  Default {DEFAULT}.")
+
+def prior_help(default: str) -> str:
+    """The ``--help`` text of ``--prior`` with ``default`` named."""
+    return ("Prior of the reconstruction: "
+            + "; ".join(f"{k} = {v}" for k, v in PRIOR_CHOICES.items())
+            + f".  Default {default}.")
 
 
-def prior_option():
-    """A fresh ``--prior`` option (typer needs one object per command)."""
-    return typer.Option(DEFAULT, "--prior", help=PRIOR_HELP)
+def prior_option(default: str = DEFAULT):
+    """A fresh ``--prior`` option (typer needs one object per command) defaulting to
+    ``default``."""
+    return typer.Option(default, "--prior", help=prior_help(default))
 
 
 def check_prior(name: str) -> str:

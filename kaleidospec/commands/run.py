@@ -14,7 +14,7 @@ from typing import List, Optional
 
 import typer
 
-from kaleidospec.commands.prior_option import check_prior, prior_option
+from kaleidospec.commands.prior_option import RUN_DEFAULT, check_prior, prior_option
 
 
 def run(
@@ -35,7 +35,7 @@ def run(
                                         "fista-tv, twist and admm follow the noise the "
                                         "calibration measured; gap-tv its own); another "
                                         "prior's strength (default: the prior's own)."),
-    prior: str = prior_option(),
+    prior: str = prior_option(RUN_DEFAULT),
     seed: int = typer.Option(0, "--seed", help="Sensor-noise seed of the scene frame."),
     raw: Optional[Path] = typer.Option(None, "--raw", help="Reconstruct this raw frame (.exr "
                                        "+ sidecar) instead of rendering; the scene gives the "

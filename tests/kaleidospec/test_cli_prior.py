@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from kaleidospec.cli import main
-from kaleidospec.commands.prior_option import DEFAULT, PRIOR_CHOICES
+from kaleidospec.commands.prior_option import DEFAULT, PRIOR_CHOICES, RUN_DEFAULT
 from recon.io.arrays import write_array2d
 from recon.io.cubes import read_cube
 
@@ -25,6 +25,22 @@ def test_help_names_are_the_registry():
 
     assert set(PRIOR_CHOICES) == set(PRIORS)
     assert DEFAULT == DEFAULT_PRIOR
+
+
+def test_run_and_demo_default_to_the_subspace_prior(capsys):
+    """``run`` and ``demo`` (and :func:`kaleidospec.run.run`) default to ``subspace-tv``, the
+    prior that beats TV on the CAVE development scenes; ``reconstruct`` and ``video`` keep TV."""
+    import inspect
+
+    from kaleidospec.run import run
+
+    assert RUN_DEFAULT == "subspace-tv" and RUN_DEFAULT in PRIOR_CHOICES
+    assert inspect.signature(run).parameters["prior"].default == RUN_DEFAULT
+    for command, default in (("run", RUN_DEFAULT), ("demo", RUN_DEFAULT),
+                             ("reconstruct", DEFAULT), ("video", DEFAULT)):
+        code, out, _ = _call([command, "--help"], capsys)
+        assert code in (0, None)
+        assert f"[default: {default}]" in " ".join(out.replace("│", " ").split()), command
 
 
 @pytest.mark.parametrize("command", COMMANDS)
