@@ -3,9 +3,8 @@ r"""Kernels of the spectral subspace priors (:mod:`recon.priors.subspace`).
 The band Gram matrix :math:`v v^\top` of an ``(L, N)`` cube, the projection
 :math:`z = E^\top v` on an orthonormal basis :math:`E` (``L × k``), the expansion
 :math:`x = E z`, and the eigenvectors of a small symmetric matrix (cyclic Jacobi).  Each is a
-small product that BLAS would do in a few milliseconds, but BLAS threads that spin on a
-machine whose cores are busy took 0.1 s per 28 × 28 ``eigh`` and per expansion (256 × 256 × 28,
-two shared cores): here they are blocks over pixels on Numba's threads, and the Gram's
+small product that BLAS would do in a few milliseconds, but BLAS threads spin on a machine
+whose cores are busy (docs/priors.md): here they are blocks over pixels on Numba's threads, and the Gram's
 partial sums are added in block order, so the result does not depend on the threads.
 """
 

@@ -61,12 +61,10 @@ from recon.solvers.base import (IterationLoop, SolverResult, check_problem, data
 __all__ = ["twist", "twist_parameters", "norm_estimate", "DEFAULT_LAM1"]
 
 #: Default lower spectral bound :math:`\lambda_1` of TwIST for CASSI.  The authors' default
-#: 1e-4 (alpha = 1.96, beta = 3.92) extrapolates so hard that on the kaleidoscope benchmark
-#: (645x501x25, 5 views, tau = 0.15) 28 of 50 two-step updates were rejected by the monotone
-#: test, each then replaced by a plain IST step.  Measured at 50 iterations (10 warm Chambolle
-#: iterations, same s): lam1 = 1e-4: 33.6 dB, objective 6018, 28 rejected; 1e-3: 36.7 dB, 5581,
-#: 21; 1e-2: 39.8 dB, 4845, 10; 5e-2: 32.5 dB, 6170, 5 (too timid).  1e-2 (alpha = 1.67,
-#: beta = 3.30) is the best of these.
+#: 1e-4 (alpha = 1.96, beta = 3.92) extrapolates so hard that most two-step updates are rejected
+#: by the monotone test and replaced by plain IST steps; 1e-2 (alpha = 1.67, beta = 3.30)
+#: reaches a lower objective in 50 iterations on the kaleidoscope benchmark, while 5e-2 is too
+#: timid (docs/reconstruction.md).
 DEFAULT_LAM1 = 1e-2
 
 # Extra dual iterations (per outer iteration) spent refining an IST step's prox that failed to
