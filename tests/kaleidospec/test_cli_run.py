@@ -46,7 +46,7 @@ def test_run_writes_everything(done):
     assert want == names
     m = json.loads((done / "metrics.json").read_text())
     assert set(m["views"]) == {"1", "2"} and set(m["oracle"]) == {"1", "2"}
-    assert m["prior"] == "tv"  # the default prior, recorded
+    assert m["prior"] == "subspace-tv"  # the default prior of run, recorded
     for e in m["views"].values():
         for k in ("psnr", "psnr_bandwise", "ssim", "sam_deg", "delta_e2000", "seconds"):
             assert isinstance(e[k], float), k
