@@ -72,7 +72,8 @@ def compare_priors(args, priors: list[str], temporal: list[float]) -> None:
     modes = prior_modes(args.frames, args.iters, args.cold_iters, temporal)
     try:
         for scene in args.scenes.split(","):
-            print(f"\n[priors] {scene}: {args.frames} frames, design {args.design}, 5 views; "
+            print(f"\n[priors] {scene}: {args.frames} frames, design {args.design}, 5 views, "
+                  f"{args.operator} operator; "
                   "PSNR dB / SSIM / SAM deg / solve s per frame (frames 1..N-1)")
             print(f"{'':<28}" + "".join(f"{p:>34}" for p in priors))
             for label, kw in modes:
@@ -81,7 +82,8 @@ def compare_priors(args, priors: list[str], temporal: list[float]) -> None:
                     out = tmp / f"{scene}_{p}_{len(cells)}_{label.replace(' ', '_')}"
                     opts = {"iters": args.iters, "cold_iters": args.cold_iters, **kw}
                     run_video(scene, out, design=args.design, frames=args.frames, views=5,
-                              prior=p, workers=1, progress=False, **opts)
+                              prior=p, workers=1, operator=args.operator, progress=False,
+                              **opts)
                     rec = json.loads((out / "metrics.json").read_text())["frames"]
                     ps, ss, sam, sec = frame_summary(rec)
                     cells.append(f"{ps:.2f} / {ss:.3f} / {sam:.1f} / {sec:.2f} s")
@@ -119,7 +121,10 @@ def main(argv=None) -> int:
             priors = [check_prior_name(p.strip()) for p in args.priors.split(",")]
         except InputError as e:
             ap.error(str(e))
-        temporal = [float(mu) for mu in args.temporal.split(",") if mu.strip()]
+        try:
+            temporal = [float(mu) for mu in args.temporal.split(",") if mu.strip()]
+        except ValueError:
+            ap.error(f"--temporal must be comma-separated numbers, got {args.temporal!r}")
         if args.frames < 2 or any(not mu > 0 for mu in temporal):
             ap.error("--priors needs --frames >= 2 and temporal weights > 0")
         compare_priors(args, priors, temporal)

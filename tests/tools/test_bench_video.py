@@ -51,3 +51,15 @@ def test_unknown_prior_is_refused_before_any_work(capsys):
         _tool().main(["--priors", "tv,nonesuch"])
     assert e.value.code == 2
     assert "unknown prior 'nonesuch'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--priors", "tv", "--temporal", "0.01,x"], "comma-separated numbers"),
+    (["--priors", "tv", "--temporal", "-0.1"], "temporal weights > 0"),
+    (["--priors", "tv", "--frames", "1"], "--frames >= 2"),
+])
+def test_bad_comparison_settings_are_refused_before_any_work(argv, message, capsys):
+    with pytest.raises(SystemExit) as e:
+        _tool().main(argv)
+    assert e.value.code == 2
+    assert message in capsys.readouterr().err
