@@ -10,9 +10,16 @@ Prints
 3. the colour wheel's sector CIEDE2000 for 1, 2, 3 and 5 views, next to the paper's
    21 / 19 / 18 / 10 (red sector against a spectroradiometer, paper Sec. 5).
 
+With ``--priors`` it prints only the comparison of priors across frames instead: for each scene
+and prior, ``kaleidospec video`` (:func:`kaleidospec.video.run_video`, one worker) frame by frame
+(``--segment 1``, cold, and cold with as many iterations as the chain accumulates), as the
+warm-started chain, and as the chain plus each temporal weight; mean PSNR / SSIM / SAM over the
+frames and the mean solve time of frames 1..N-1 (docs/priors.md, "Video").
+
 Targets: render ≥ 5 frames/s; reconstruct ≥ 1 frame/s warm, within 0.5 dB of cold × 50.
 
     python3 tools/bench_video.py [--frames 12] [--iters 15] [--design small]
+    python3 tools/bench_video.py --priors tv,subspace-tv --frames 6 [--temporal 0.01,0.05]
 """
 
 from __future__ import annotations
@@ -27,6 +34,65 @@ import numpy as np
 PAPER_DE = {1: 21, 2: 19, 3: 18, 5: 10}
 
 
+def prior_modes(frames: int, iters: int, cold_iters: int, temporal) -> list[tuple[str, dict]]:
+    """The ways of solving a sequence that ``--priors`` compares: ``(label, run_video keywords)``.
+
+    Frame by frame (one-frame segments: every frame cold, no temporal term), frame by frame with
+    the iterations the chain has run by its last frame (``cold_iters + (frames - 1) * iters``:
+    a chain's gain is then not only more iterations), the warm-started chain (one segment) and
+    the chain with each temporal weight.
+    """
+    long_iters = cold_iters + (frames - 1) * iters
+    modes = [("frame by frame", {"segment_frames": 1}),
+             (f"frame by frame x{long_iters}", {"segment_frames": 1, "cold_iters": long_iters}),
+             ("chain", {})]
+    modes += [(f"chain + temporal {mu:g}", {"temporal": float(mu)}) for mu in temporal]
+    return modes
+
+
+def frame_summary(frames: list[dict]) -> tuple[float, float, float, float]:
+    """(mean PSNR, mean SSIM, mean SAM over all frames, mean solve seconds of frames 1..N-1)
+    from ``metrics.json``'s per-frame records (frame 0 is a cold solve in every mode)."""
+    frames = sorted(frames, key=lambda m: m["frame"])
+    if len(frames) < 2:
+        raise ValueError("the comparison needs at least two frames")
+    mean = lambda key, rows: float(np.mean([m[key] for m in rows]))  # noqa: E731
+    return (mean("psnr", frames), mean("ssim", frames), mean("sam_deg", frames),
+            mean("solve_seconds", frames[1:]))
+
+
+def compare_priors(args, priors: list[str], temporal: list[float]) -> None:
+    """Print, per scene, one row per mode and one column per prior (see the module notes)."""
+    import json
+    import shutil
+
+    from kaleidospec.video import run_video
+
+    tmp = Path(tempfile.mkdtemp(prefix="bench_video_priors_"))
+    modes = prior_modes(args.frames, args.iters, args.cold_iters, temporal)
+    try:
+        for scene in args.scenes.split(","):
+            print(f"\n[priors] {scene}: {args.frames} frames, design {args.design}, 5 views, "
+                  f"{args.operator} operator; "
+                  "PSNR dB / SSIM / SAM deg / solve s per frame (frames 1..N-1)")
+            print(f"{'':<28}" + "".join(f"{p:>34}" for p in priors))
+            for label, kw in modes:
+                cells = []
+                for p in priors:
+                    out = tmp / f"{scene}_{p}_{len(cells)}_{label.replace(' ', '_')}"
+                    opts = {"iters": args.iters, "cold_iters": args.cold_iters, **kw}
+                    run_video(scene, out, design=args.design, frames=args.frames, views=5,
+                              prior=p, workers=1, operator=args.operator, progress=False,
+                              **opts)
+                    rec = json.loads((out / "metrics.json").read_text())["frames"]
+                    ps, ss, sam, sec = frame_summary(rec)
+                    cells.append(f"{ps:.2f} / {ss:.3f} / {sam:.1f} / {sec:.2f} s")
+                    shutil.rmtree(out, ignore_errors=True)
+                print(f"{label:<28}" + "".join(f"{c:>34}" for c in cells), flush=True)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--design", default="small")
@@ -39,7 +105,30 @@ def main(argv=None) -> int:
     ap.add_argument("--skip-parallel", action="store_true")
     ap.add_argument("--operator", choices=("calibrated", "oracle"), default="calibrated",
                     help="reconstruct with the calibration or the design's exact operator")
+    ap.add_argument("--priors", default=None,
+                    help="comma-separated prior names: print only the comparison of priors "
+                         "across frames (frame by frame, chain, chain + temporal term)")
+    ap.add_argument("--scenes", default="colorwheel,moving_object",
+                    help="scenes of the --priors comparison")
+    ap.add_argument("--temporal", default="0.01,0.05",
+                    help="temporal weights of the --priors comparison")
     args = ap.parse_args(argv)
+    if args.priors is not None:
+        from recon.errors import InputError
+        from recon.priors import check_prior_name
+
+        try:
+            priors = [check_prior_name(p.strip()) for p in args.priors.split(",")]
+        except InputError as e:
+            ap.error(str(e))
+        try:
+            temporal = [float(mu) for mu in args.temporal.split(",") if mu.strip()]
+        except ValueError:
+            ap.error(f"--temporal must be comma-separated numbers, got {args.temporal!r}")
+        if args.frames < 2 or any(not mu > 0 for mu in temporal):
+            ap.error("--priors needs --frames >= 2 and temporal weights > 0")
+        compare_priors(args, priors, temporal)
+        return 0
 
     from kaleidospec.calibrate import calibrate, calibration_file
     from kaleidospec.evaluate import frame_metrics
