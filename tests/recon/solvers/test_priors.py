@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 
 from recon.errors import InputError
-from recon.operators import kaleidoscope_cassi, standard_cassi
 from recon.priors import PriorBase, TVPrior
 from recon.solvers import SOLVERS, solve
 
@@ -18,14 +17,6 @@ def _cube(seed=0):
     x = np.full((L, H, W), 0.2)
     x[:, 2:7, 3:8] = 0.8
     return (x + 0.05 * rng.standard_normal(x.shape)).astype(np.float32)
-
-
-@pytest.fixture(scope="module")
-def ops():
-    rng = np.random.default_rng(3)
-    return {"standard": standard_cassi((rng.random((H, W)) > 0.5).astype(np.float32), 1, L),
-            "kaleido3": kaleidoscope_cassi((rng.random((3, H, W)) > 0.5).astype(np.float32),
-                                           np.arange(L, dtype=float), 3)}
 
 
 class Quadratic(PriorBase):
@@ -68,8 +59,8 @@ CASES = [("twist", {}), ("twist", {"tau": 0.05, "tv_iters": 4, "isotropic": Fals
 @pytest.mark.parametrize("opname", ["standard", "kaleido3"])
 @pytest.mark.parametrize("name,kw", CASES)
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
-def test_tv_prior_gives_the_bits_of_the_tv_options(ops, opname, name, kw, dtype):
-    op = ops[opname]
+def test_tv_prior_gives_the_bits_of_the_tv_options(small_ops, opname, name, kw, dtype):
+    op = small_ops[opname]
     if name == "admm" and kw.get("exact") is False and opname == "kaleido3":
         pytest.skip("same as the default there")
     g = (op.forward(_cube()) + 0.01).astype(dtype)
@@ -88,8 +79,8 @@ def test_tv_prior_gives_the_bits_of_the_tv_options(ops, opname, name, kw, dtype)
     assert new.info["prior"] == "tv" and new.info["weight"] == weight
 
 
-def test_a_prior_object_is_reset_between_solves(ops):
-    op = ops["kaleido3"]
+def test_a_prior_object_is_reset_between_solves(small_ops):
+    op = small_ops["kaleido3"]
     g = op.forward(_cube())
     prior = TVPrior(0.1)
     a = solve("fista-tv", op, g, iters=8, prior=prior).x
@@ -100,8 +91,8 @@ def test_a_prior_object_is_reset_between_solves(ops):
 @pytest.mark.parametrize("name,kw,iters", [("fista-tv", {}, 3000), ("twist", {}, 3000),
                                            ("admm", {}, 400), ("admm", {"exact": False}, 400)])
 @pytest.mark.parametrize("opname", ["standard", "kaleido3"])
-def test_quadratic_prior_reaches_the_dense_minimiser(ops, opname, name, kw, iters):
-    op = ops[opname]
+def test_quadratic_prior_reaches_the_dense_minimiser(small_ops, opname, name, kw, iters):
+    op = small_ops[opname]
     g = op.forward(_cube(1).astype(np.float64)) + 0.02
     w = 0.05
     want = _ridge(op, g, w)
@@ -110,8 +101,8 @@ def test_quadratic_prior_reaches_the_dense_minimiser(ops, opname, name, kw, iter
 
 
 @pytest.mark.parametrize("name", ["fista-tv", "admm"])
-def test_prior_without_value_runs_to_the_same_minimiser(ops, name):
-    op = ops["kaleido3"]
+def test_prior_without_value_runs_to_the_same_minimiser(small_ops, name):
+    op = small_ops["kaleido3"]
     g = op.forward(_cube(2).astype(np.float64))
     want = _ridge(op, g, 0.05)
     res = solve(name, op, g, iters=3000, prior=Quadratic(0.05, valued=False), tol=1e-13,
@@ -120,8 +111,8 @@ def test_prior_without_value_runs_to_the_same_minimiser(ops, name):
     assert np.linalg.norm(res.x - want) / np.linalg.norm(want) < 1e-5
 
 
-def test_gap_takes_a_denoiser_prior(ops):
-    op = ops["standard"]
+def test_gap_takes_a_denoiser_prior(small_ops):
+    op = small_ops["standard"]
     g = op.forward(_cube(3))
     res = solve("gap-tv", op, g, iters=10, prior=Quadratic(0.5, valued=False), objective=True)
     assert np.all(np.isfinite(res.x)) and res.objective == []
@@ -131,15 +122,15 @@ def test_gap_takes_a_denoiser_prior(ops):
     assert np.linalg.norm(op.forward(fit) - g) < 1e-3 * np.linalg.norm(g)
 
 
-def test_twist_refuses_a_prior_without_value(ops):
-    op = ops["standard"]
+def test_twist_refuses_a_prior_without_value(small_ops):
+    op = small_ops["standard"]
     with pytest.raises(InputError, match="prior with a value"):
         solve("twist", op, op.forward(_cube()), iters=3, prior=Quadratic(0.1, valued=False))
 
 
 @pytest.mark.parametrize("name", sorted(SOLVERS))
-def test_bad_prior_arguments(ops, name):
-    op = ops["standard"]
+def test_bad_prior_arguments(small_ops, name):
+    op = small_ops["standard"]
     g = op.forward(_cube())
     with pytest.raises(InputError, match="set them on the prior"):
         solve(name, op, g, iters=2, prior=TVPrior(0.1), tau=0.1)
