@@ -28,37 +28,37 @@ from numba import prange
 
 from recon.kernels import jit
 
-__all__ = ["correlate_views"]
+__all__ = ["correlate_views", "correlate_row"]
 
 #: Output rows per parallel task (one accumulator allocated per task).
 _ROWS = 8
 
 
 @jit(refcount=False)
-def _correlate_row(y, f, i, scale, acc, out):
-    """``out`` = ``scale`` × the correlation of ``y`` (H, W) with ``f`` on row ``i``."""
-    h, w = y.shape
-    m = f.shape[0]
+def correlate_row(a, k, i, acc):
+    r"""``acc`` :math:`= \sum_{p,q} a[i+p-n, j+q-n]\, k[p, q]` for every column ``j`` of row
+    ``i`` of the image ``a`` (H, W), zero outside ``a``; ``k`` is (m, m), m = 2n + 1.  The row
+    kernel of :func:`correlate_views` and of :mod:`recon.kernels.deconvolve`."""
+    h, w = a.shape
+    m = k.shape[0]
     n = m // 2
     for j in range(w):
         acc[j] = 0
-    for a in range(m):
-        r = i + a - n
-        if r < 0 or r >= h:
+    for p in range(m):
+        ii = i + p - n
+        if ii < 0 or ii >= h:
             continue
-        src = y[r]
-        for b in range(m):
-            wgt = f[a, b]
-            d = b - n
-            # Columns j with 0 <= j + d < w.
-            j0 = max(0, -d)
-            j1 = min(w, w - d)
-            o = acc[j0:j1]
-            s = src[j0 + d:j1 + d]
-            for j in range(j1 - j0):
-                o[j] += wgt * s[j]
-    for j in range(w):
-        out[j] = scale * acc[j]
+        src = a[ii]
+        for q in range(m):
+            kq = k[p, q]
+            # Columns j whose tap j + q - n lies inside the row.
+            lo = max(0, n - q)
+            hi = min(w, w + n - q)
+            if hi <= lo:
+                continue
+            d, s = acc[lo:hi], src[lo + q - n:hi + q - n]
+            for j in range(hi - lo):
+                d[j] += kq * s[j]
 
 
 @jit(parallel=True)
@@ -81,4 +81,7 @@ def correlate_views(y, f, scale, out):
         i0 = (task - k * per_view) * _ROWS
         acc = np.empty(w, dtype=out.dtype)
         for i in range(i0, min(h, i0 + _ROWS)):
-            _correlate_row(y[k], f, i, scale, acc, out[k, i])
+            correlate_row(y[k], f, i, acc)
+            row = out[k, i]
+            for j in range(w):
+                row[j] = scale * acc[j]

@@ -26,34 +26,9 @@ import numpy as np
 from numba import prange
 
 from recon.kernels import jit
+from recon.kernels.blur import correlate_row
 
 __all__ = ["ratio", "update"]
-
-
-@jit(refcount=False)
-def _correlate_row(a, k, i, acc):
-    r"""``acc`` :math:`= \sum_{p,q} a[i+p-n, j+q-n]\, k[p, q]` for every column ``j`` of row
-    ``i`` (zero outside ``a``)."""
-    h, w = a.shape
-    m = k.shape[0]
-    n = m // 2
-    for j in range(w):
-        acc[j] = 0
-    for p in range(m):
-        ii = i + p - n
-        if ii < 0 or ii >= h:
-            continue
-        src = a[ii]
-        for q in range(m):
-            kq = k[p, q]
-            # Columns j whose tap j + q - n lies inside the row.
-            lo = max(0, n - q)
-            hi = min(w, w + n - q)
-            if hi <= lo:
-                continue
-            d, s = acc[lo:hi], src[lo + q - n:hi + q - n]
-            for j in range(hi - lo):
-                d[j] += kq * s[j]
 
 
 @jit(parallel=True)
@@ -73,7 +48,7 @@ def ratio(u, d, kflip, eps, out):
     h, w = u.shape
     for i in prange(h):
         acc = np.empty(w, dtype=out.dtype)
-        _correlate_row(u, kflip, i, acc)
+        correlate_row(u, kflip, i, acc)
         di, oi = d[i], out[i]
         for j in range(w):
             oi[j] = di[j] / (acc[j] + eps)
@@ -86,7 +61,7 @@ def update(u, r, k):
     h, w = u.shape
     for i in prange(h):
         acc = np.empty(w, dtype=u.dtype)
-        _correlate_row(r, k, i, acc)
+        correlate_row(r, k, i, acc)
         ui = u[i]
         for j in range(w):
             ui[j] *= acc[j]
