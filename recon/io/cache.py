@@ -235,6 +235,23 @@ def _check_arrays(arrays: dict, head: dict, expect) -> None:
         raise Damaged("checksum mismatch")
 
 
+def _load_checked(path, companions: Iterable, load):
+    """``load(p)`` of the entry at ``path`` when it exists and is not empty; ``None`` when there
+    is no file, or when the file is empty or ``load`` raises :class:`Damaged`: the file (and
+    ``companions``) is then removed with one warning line (:func:`discard`)."""
+    p = Path(path)
+    st = _stat(p)
+    if st is None:
+        return None
+    try:
+        if st.st_size == 0:
+            raise Damaged("empty file")
+        return load(p)
+    except Damaged as exc:
+        discard(p, str(exc), companions=companions, stat=st)
+        return None
+
+
 def read_npz(path, *, kind: str, design_hash=None, version=None, key=None,
              expect: Mapping | None = None, meta: bool = False, companions: Iterable = ()):
     """The arrays of an ``.npz`` entry written by :func:`write_npz`, or ``None``.
@@ -251,13 +268,7 @@ def read_npz(path, *, kind: str, design_hash=None, version=None, key=None,
     meta : bool
         Return ``(arrays, header_meta)`` instead of the arrays.
     """
-    p = Path(path)
-    st = _stat(p)
-    if st is None:
-        return None
-    try:
-        if st.st_size == 0:
-            raise Damaged("empty file")
+    def load(p: Path):
         try:
             with np.load(p, allow_pickle=False) as z:
                 if ENTRY not in z.files:
@@ -273,10 +284,9 @@ def read_npz(path, *, kind: str, design_hash=None, version=None, key=None,
             # EOFError, ValueError from the .npy header, ...): all of them mean "rebuild".
             raise Damaged(f"unreadable: {type(exc).__name__}: {exc}") from None
         _check_arrays(arrays, head, expect)
-    except Damaged as exc:
-        discard(p, str(exc), companions=companions, stat=st)
-        return None
-    return (arrays, head.get("meta")) if meta else arrays
+        return (arrays, head.get("meta")) if meta else arrays
+
+    return _load_checked(path, companions, load)
 
 
 def read_header(path, *, kind: str, design_hash=None, version=None, key=None) -> dict | None:
@@ -297,13 +307,7 @@ def read_json(path, *, kind: str, design_hash=None, version=None, key=None,
               companions: Iterable = ()) -> dict | None:
     """The object of a ``.json`` entry written by :func:`write_json` (header removed), or
     ``None`` (no file, or a damaged one: removed with one warning line)."""
-    p = Path(path)
-    st = _stat(p)
-    if st is None:
-        return None
-    try:
-        if st.st_size == 0:
-            raise Damaged("empty file")
+    def load(p: Path) -> dict:
         try:
             with open(p, "rb") as fh:
                 obj = json.loads(fh.read().decode("utf-8"))
@@ -315,10 +319,9 @@ def read_json(path, *, kind: str, design_hash=None, version=None, key=None,
         _check_header(head, kind=kind, design_hash=design_hash, version=version, key=key)
         if _json_digest(obj) != head.get("sha256"):
             raise Damaged("checksum mismatch")
-    except Damaged as exc:
-        discard(p, str(exc), companions=companions, stat=st)
-        return None
-    return obj
+        return obj
+
+    return _load_checked(path, companions, load)
 
 
 def check_seal(path, files: Mapping[str, os.PathLike | str], *, kind: str, design_hash=None,
