@@ -8,12 +8,29 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["parse_list", "scene_label", "finite", "metrics_of", "write_json", "save_figure",
+__all__ = ["CAVE_DEV_SCENES", "cave_folder", "parse_list", "scene_label", "finite", "metrics_of", "write_json", "save_figure",
            "srgb", "srgb_peak", "fmt", "get_design", "matplotlib_agg", "stop_rule"]
+
+
+#: The CAVE scenes for development, tuning and the docs' tables; the rest of the database is
+#: held out for independent evaluation.
+CAVE_DEV_SCENES = ("cloth", "thread_spools", "pompoms", "chart_and_stuffed_toy",
+                   "egyptian_statue", "superballs", "fake_and_real_sushi", "paints")
+
+
+def cave_folder(name: str) -> Path | None:
+    """The CAVE folder ``$KALEIDOSPEC_DATA/cave/<name>``, or None when the variable is unset or
+    the folder absent (the data are never part of the repository)."""
+    root = os.environ.get("KALEIDOSPEC_DATA")
+    if not root:
+        return None
+    folder = Path(root) / "cave" / name
+    return folder if folder.is_dir() else None
 
 
 def parse_list(text: str, kind=str) -> list:

@@ -295,11 +295,12 @@ def scene_source(name: str):
     a CAVE scene is asked for and absent."""
     from scenes.registry import list_scenes
 
+    from kaleidospec.experiments import cave_folder
+
     if name in list_scenes():
         return name
-    root = os.environ.get("KALEIDOSPEC_DATA")
-    folder = Path(root) / "cave" / name if root else None
-    return str(folder) if folder is not None and folder.is_dir() else None
+    folder = cave_folder(name)
+    return None if folder is None else str(folder)
 
 
 def _best(fn, repeat):

@@ -42,18 +42,9 @@ from pathlib import Path
 
 import numpy as np
 
-DEV_SCENES = ("cloth", "thread_spools", "pompoms", "chart_and_stuffed_toy", "egyptian_statue",
-              "superballs", "fake_and_real_sushi", "paints")
+from kaleidospec.experiments import CAVE_DEV_SCENES, cave_folder
+
 CASSI_SIZE, CASSI_BANDS, CASSI_STEP = 256, slice(1, 29), 2
-
-
-def scene_folder(name: str) -> Path | None:
-    """The CAVE folder of ``name`` under ``$KALEIDOSPEC_DATA``, or None when absent."""
-    root = os.environ.get("KALEIDOSPEC_DATA")
-    if not root:
-        return None
-    p = Path(root) / "cave" / name
-    return p if p.is_dir() else None
 
 
 def scores(est_bm: np.ndarray, truth_bm: np.ndarray) -> dict:
@@ -179,7 +170,7 @@ def main(argv=None) -> int:
     ap.add_argument("--views", default="1,5", help="view counts for small/paper")
     ap.add_argument("--priors", default="tv,subspace-tv",
                     help="comma list of recon.priors names (tv first: the reference)")
-    ap.add_argument("--scenes", default=",".join(DEV_SCENES))
+    ap.add_argument("--scenes", default=",".join(CAVE_DEV_SCENES))
     ap.add_argument("--noise", type=float, default=0.005,
                     help="cassi: Gaussian noise rms over the measurement's peak")
     ap.add_argument("--gap-tau", type=float, default=0.05, help="cassi: every prior's weight")
@@ -191,7 +182,7 @@ def main(argv=None) -> int:
 
     priors = [check_prior_name(p) for p in args.priors.split(",") if p]
     scenes = [s for s in args.scenes.split(",") if s]
-    held_out = [s for s in scenes if s not in DEV_SCENES]
+    held_out = [s for s in scenes if s not in CAVE_DEV_SCENES]
     if held_out:
         print(f"refusing scenes outside the development set: {', '.join(held_out)}",
               file=sys.stderr)
@@ -201,7 +192,7 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     rows: list[dict] = []
     for name in scenes:
-        folder = scene_folder(name)
+        folder = cave_folder(name)
         if folder is None:
             print(f"skipping {name}: no folder $KALEIDOSPEC_DATA/cave/{name} "
                   f"(KALEIDOSPEC_DATA={os.environ.get('KALEIDOSPEC_DATA')!r})", flush=True)
