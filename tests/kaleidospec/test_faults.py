@@ -166,16 +166,9 @@ def _cli(argv, capsys):
 
 # ------------------------------------------------------------------------------ the base run
 @pytest.fixture(scope="module")
-def base(tmp_path_factory):
+def base(tmp_path_factory, spectral_variant):
     """``kaleidospec run`` of the reduced design on the ColorChecker in a fresh cache of this
     module's own: its traced maps (captures, scene), its calibration and its outputs."""
-    pytest.importorskip("mitsuba")
-    from sim.optics.variant import ensure_variant
-
-    try:
-        ensure_variant()
-    except Exception as err:  # no usable LLVM for drjit on this machine
-        pytest.skip(f"Mitsuba's spectral variant is not usable here: {err}")
     from kaleidospec.cli import main
     from kaleidospec.instrument import get_design
     from recon.calibration import calibration_path, load_cached
