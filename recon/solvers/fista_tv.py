@@ -46,7 +46,7 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
              lipschitz: float | None = None, isotropic: bool | None = None,
              objective: bool = False, restart: bool = True,
              threads: int | None = None, metric: str = "scalar",
-             metric_exponent: float | None = None) -> SolverResult:
+             metric_exponent: float | None = None, start: str = "adjoint") -> SolverResult:
     r"""Reconstruct with FISTA and a prior (by default TV).
 
     Parameters
@@ -62,7 +62,7 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
         Weight :math:`\tau` of the TV term (default
         :data:`recon.priors.tv.DEFAULT_WEIGHT`\ ``["fista"]``).
     x0 : ndarray, optional
-        Start; :math:`H^\top g / L` if omitted.
+        Start; if omitted, ``start`` says which.
     tol : float, optional
         Stop when the relative change of :math:`f` falls below it.
     callback : Callback, optional
@@ -92,6 +92,11 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
     metric_exponent : float, optional
         The band metric's exponent :math:`p` in [0, 1]
         (:data:`recon.solvers.band_metric.DEFAULT_EXPONENT` if omitted).
+    start : {"adjoint", "normalised"}
+        The start when ``x0`` is omitted: the gradient step from zero (:math:`H^\top g/L`,
+        or :math:`D^{-1}H^\top g` in the band metric), or the normalised back-projection
+        :math:`H^\top g / H^\top H\mathbf 1` (:mod:`recon.solvers.start`: without the
+        mask's pattern; one forward and one adjoint more).
 
     Returns
     -------
@@ -100,6 +105,10 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
     g, x0, dtype = check_problem(op, g, x0, iters, tau, tol)
     prior = resolve_prior(prior, "fista", op.ishape, dtype, tau=tau, tv_iters=tv_iters,
                           warm_dual=warm_dual, isotropic=isotropic, threads=threads)
+    from recon.solvers.start import STARTS, normalised_backprojection
+
+    if start not in STARTS:
+        raise InputError(f"start must be one of {', '.join(STARTS)}, got {start!r}")
     bands = _use_band_metric(metric, prior, lipschitz)
     loop = IterationLoop(tol, callback)
     if bands:
@@ -116,7 +125,9 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
     if not lip > 0:
         raise InputError("the operator is zero (or lipschitz <= 0): nothing to reconstruct")
 
-    if x0 is None:
+    if x0 is None and start == "normalised":
+        x0 = normalised_backprojection(op, g, dtype)
+    elif x0 is None:
         # H^T g / L (scalar metric) or D^{-1} H^T g (band metric): the first gradient step
         # from zero.
         x0 = np.ascontiguousarray(op.adjoint(g), dtype=dtype)
