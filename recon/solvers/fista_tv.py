@@ -22,6 +22,17 @@ assumption on :math:`HH^\top`), with one forward and one adjoint per iteration. 
 warm-started from the previous dual.  With a plug-and-play denoiser in place of the prox
 (a prior whose ``value`` is None) it is PnP-FISTA, and the restart tests the step's direction
 only.
+
+With ``metric="bands"`` the step is taken in a diagonal metric :math:`D` constant over each
+band (:mod:`recon.solvers.band_metric`), :math:`H^\top H \preceq D`:
+
+.. math::
+
+    f_k = \mathrm{prox}^D_{\varphi}\bigl(z_k + D^{-1}H^\top(g-Hz_k)\bigr),
+
+the same objective, the restart test taken in the metric; the bands the operator sees weakly
+are no longer held to the strong bands' step.  It needs a prior that separates over the bands
+and is 1-homogeneous (TV); ``metric="auto"`` falls back to the scalar step for others.
 """
 
 from __future__ import annotations
