@@ -393,6 +393,7 @@ class Reconstructor:
         self._offset = offset
         self.kind = kind
         self._step = None
+        self._lipschitz = None
 
     @classmethod
     def calibrated(cls, cal, n_views: int, **kw) -> "Reconstructor":
@@ -455,8 +456,17 @@ class Reconstructor:
         return {"prior": self._prior}
 
     def solver_options(self) -> dict:
-        """GAP-TV's step (computed on first use) and prox threads."""
+        """GAP-TV's step, or FISTA-TV's Lipschitz constant ‖H‖² (each computed on
+        first use: the operator is the sequence's, so a frame does not repeat the power
+        iteration, 15 forward/adjoint pairs, which is as much as a warm frame's iterations),
+        and prox threads."""
         opts = {}
+        if self.solver == "fista-tv":
+            if self._lipschitz is None:
+                from recon.solvers import operator_norm_sq
+
+                self._lipschitz = operator_norm_sq(self.op, dtype=np.float32)
+            opts["lipschitz"] = self._lipschitz
         if self.solver == "gap-tv":
             if self._step is None:
                 from recon.solvers.base import (preconditioned_norm_sq, row_norms_sq,

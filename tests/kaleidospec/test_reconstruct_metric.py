@@ -44,3 +44,35 @@ def test_solver_metric():
     assert solver_metric("twist", "auto") == {} and solver_metric("gap-tv", "scalar") == {}
     with pytest.raises(InputError, match="FISTA"):
         solver_metric("twist", "bands")
+
+
+def test_reconstructor_computes_fistas_step_once(problem, monkeypatch):
+    # A sequence's frames share the operator: FISTA-TV's ||H||^2 is estimated once, and the
+    # frames come out as a plain solve of each would give them, to the bit.
+    import sys
+
+    import recon.solvers as solvers
+    from kaleidospec.reconstruct import Reconstructor
+    from recon.solvers import fista_tv
+
+    op, g = problem
+    rec = Reconstructor(op, lambda frame, meta: frame, solver="fista-tv", tau=0.01)
+    calls = []
+    real = solvers.operator_norm_sq
+
+    def counted(*a, **k):
+        calls.append(1)
+        return real(*a, **k)
+    monkeypatch.setattr(solvers, "operator_norm_sq", counted)
+    monkeypatch.setattr(sys.modules["recon.solvers.fista_tv"], "operator_norm_sq", counted)
+    frames = [g, g * np.float32(0.8)]
+    cubes = []
+    for i, frame in enumerate(frames):
+        gm = rec.measurement(frame, {})
+        cubes.append(rec.solve(gm, iters=10, x0=None if i == 0 else cubes[-1])[0])
+    assert len(calls) == 1
+    monkeypatch.undo()
+    gm = rec.measurement(frames[1], {})
+    x0 = np.ascontiguousarray(np.moveaxis(cubes[0], 2, 0))
+    want = fista_tv(rec.op, gm, iters=10, tau=0.01, x0=x0).x
+    np.testing.assert_array_equal(cubes[1], np.moveaxis(want, 0, 2))
