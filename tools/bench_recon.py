@@ -511,7 +511,7 @@ def bench_calibrated(design_name, scenes, views, repeat, warm, quick, converge=T
                 rows.append(row)
                 continue
             # The converged solve with every step metric asked for (--metrics), one after
-            # the other on the same frame: the default one last, its cube kept.
+            # the other on the same frame; the last one's cube is kept (for --warm).
             for metric in metrics:
                 with PeakRSS() as mem:
                     cube, info = reconstruct_views(frame, meta, cal, n, truth=truths[n],
