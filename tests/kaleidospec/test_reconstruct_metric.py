@@ -51,7 +51,7 @@ def test_reconstructor_computes_fistas_step_once(problem, monkeypatch):
     # frames come out as a plain solve of each would give them, to the bit.
     import sys
 
-    import recon.solvers as solvers
+    from recon import solvers
     from kaleidospec.reconstruct import Reconstructor
     from recon.solvers import fista_tv
 

@@ -7,8 +7,12 @@ from recon.errors import InputError
 from recon.operators import MatrixOperator, kaleidoscope_cassi
 from recon.priors import TVPrior, make_prior
 from recon.solvers import fista_tv
-from recon.solvers.band_metric import (BandMetric, band_column_norms_sq, band_metric,
-                                       band_scalable)
+from recon.solvers.band_metric import (
+    BandMetric,
+    band_column_norms_sq,
+    band_metric,
+    band_scalable,
+)
 from recon.solvers.base import objective
 
 SHAPE = (3, 10, 9)
