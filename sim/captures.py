@@ -191,6 +191,7 @@ def capture(design, cube, wavelengths, *, wavelength_nm=None, repeats: int = 4, 
     """
     from sim.bands import check_cube
     from sim.frame import FrameModel, exposure, frame_metadata
+    from recon.kernels import each
     from sim.sensor import digitise
     from sim.transport.exact import SEEDS
 
@@ -205,13 +206,19 @@ def capture(design, cube, wavelengths, *, wavelength_nm=None, repeats: int = 4, 
     if repeats == 0:
         frame = digitise(ne, design, seed=seed, noise=False)
     else:
+        from recon.kernels import cores
+
         acc = np.zeros(ne.shape, np.float64)
-        for r in range(repeats):
-            # Same exposure for every repeat (the lab does not re-expose between frames).
-            one = digitise(ne, design, seed=seed + r, noise=True)
-            if singles is not None and r < len(singles):
-                singles[r] = one
-            acc += one
+        # Same exposure for every repeat (the lab does not re-expose between frames).  Each
+        # repeat draws from its own seed, so they are read out in parallel (the draws and the
+        # readout release the GIL), a pair at a time on two cores, and summed in their order.
+        for r0 in range(0, repeats, max(1, cores())):
+            group = range(r0, min(repeats, r0 + max(1, cores())))
+            for r, one in zip(group, each(lambda r: digitise(ne, design, seed=seed + r,
+                                                             noise=True), group)):
+                if singles is not None and r < len(singles):
+                    singles[r] = one
+                acc += one
         frame = (acc / repeats).astype(np.float32)
     meta = frame_metadata(design, model.bands_nm, wavelength_nm=wavelength_nm, seed=seed,
                           method="transport", spp=None, trace_seed=model.trace_seed,
