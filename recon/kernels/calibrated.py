@@ -42,14 +42,14 @@ from numba import prange
 
 from recon.kernels import jit
 
-__all__ = ["forward_view", "shift_adjoint", "warp_adjoint", "adjoint_views", "ADJOINT_ROWS",
-           "ADJOINT_MAX_ZROWS"]
+__all__ = ["forward_view", "shift_adjoint", "warp_adjoint", "adjoint_views", "adjoint_rows",
+           "ADJOINT_TASK_BYTES", "ADJOINT_MAX_ZROWS"]
 
 #: Rows per parallel task: enough to amortise the scratch allocation, few enough to balance.
 _ROWS = 8
-#: Cube rows per task of :func:`adjoint_views`: its scratch (the task's rows of every band and
-#: the view rows they gather from) stays in a core's L2 cache at the ``paper`` size.
-ADJOINT_ROWS = 8
+#: Bytes of a task's rows of every band in :func:`adjoint_views` (:func:`adjoint_rows`): with
+#: the view rows they gather from, the task's scratch stays in a core's L2 cache.
+ADJOINT_TASK_BYTES = 1 << 18
 #: The most view rows a task of :func:`adjoint_views` may need (warps that spread a cube row
 #: over more, e.g. a strong rotation, take the view-by-view kernels).
 ADJOINT_MAX_ZROWS = 32
@@ -253,6 +253,15 @@ def warp_adjoint(z, indptr, indices, data, mode, base, scale, out):
             _gather_row(z, indptr, indices, data, yy, s)
             for l in range(n_bands):
                 _combine(out[l, yy], s[l], mode, base[l, yy], scale)
+
+
+def adjoint_rows(n_bands: int, h: int, w: int, cores: int) -> int:
+    """Cube rows per task of :func:`adjoint_views`: as many as :data:`ADJOINT_TASK_BYTES`
+    holds (at least 8: a task remakes the one or two view rows it shares with the next, so
+    fewer rows would remake a larger share), while every core still gets four tasks."""
+    fit = ADJOINT_TASK_BYTES // max(1, 4 * n_bands * w)
+    share = -(-h // (4 * max(1, cores)))
+    return int(max(1, min(max(8, fit), max(8, share), h)))
 
 
 @jit(refcount=False)

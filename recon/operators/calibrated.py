@@ -302,7 +302,7 @@ class CalibratedCassi(LinearOperator):
 
             views = self._kernel_arrays()
             n_bands, h, w = self.ishape
-            rows = kcal.ADJOINT_ROWS
+            rows = kcal.adjoint_rows(n_bands, h, w, kernels.cores())
             n_tasks = (h + rows - 1) // rows
             first = np.arange(n_tasks) * rows
             last = np.minimum(first + rows, h)
