@@ -321,18 +321,15 @@ class CalibratedCassi(LinearOperator):
                 indices.append(ix)
                 data.append(dv)
                 nnz += ix.size
-                # The view rows each cube row gathers from, then each task's span of them.
-                counts = np.diff(ip.astype(np.int64))
-                row_of = np.repeat(np.arange(h * w) // w, counts)
+                # The span of view rows each task's entries of W^T read: the tasks' entries
+                # are consecutive runs of the CSR arrays, so a reduction from each non-empty
+                # task's start to the next one's is over that task's entries exactly.
                 vrow = ix.astype(np.int64) // wv
-                lo_row = np.full(h, np.iinfo(np.int64).max)
-                hi_row = np.full(h, -1)
-                np.minimum.at(lo_row, row_of, vrow)
-                np.maximum.at(hi_row, row_of, vrow)
-                for t in range(n_tasks):
-                    a0, a1 = lo_row[first[t]:last[t]].min(), hi_row[first[t]:last[t]].max()
-                    if a1 >= 0:
-                        vlo[k, t], vhi[k, t] = a0, a1 + 1
+                start, stop = ip[first * w].astype(np.int64), ip[last * w].astype(np.int64)
+                some = stop > start
+                if some.any():
+                    vlo[k, some] = np.minimum.reduceat(vrow, start[some])
+                    vhi[k, some] = np.maximum.reduceat(vrow, start[some]) + 1
             zrows = int((vhi - vlo).max()) if vhi.size else 0
             if zrows > kcal.ADJOINT_MAX_ZROWS:
                 self._plan = False
