@@ -480,30 +480,17 @@ def _fista_tv_deconvolve(u, kd, power, weight, iterations, rfft, irfft):
     v = np.empty_like(u)
     nxt = np.empty_like(u)
     t = 1.0
-    # The element-wise passes fused (recon.kernels.fista_deconvolve: the same bits as the
-    # NumPy expressions below, which stay the path without the kernels).
-    fused = kernels.usable(u, power) and kd.dtype == np.complex64
-    if fused:
-        from recon.kernels import fista_deconvolve as kfd
     for _ in range(iterations):
         spec = rfft(z)
-        if fused and spec.dtype == np.complex64 and spec.flags.c_contiguous:
-            with kernels.threads():
-                kfd.spectral_step(spec, power, kd)
-        else:
-            spec *= power
-            spec -= kd
+        spec *= power
+        spec -= kd
         np.subtract(z, irfft(spec), out=v)
         # Two warm dual iterations per step: an even count (recon.prox.tv's notes).
         prox(v, weight, n_iter=2, out=nxt)
         t_next = 0.5 * (1.0 + np.sqrt(1.0 + 4.0 * t * t))
-        if fused:
-            with kernels.threads():
-                kfd.momentum(nxt, u, np.float32((t - 1.0) / t_next), z)
-        else:
-            np.subtract(nxt, u, out=z)
-            z *= np.float32((t - 1.0) / t_next)
-            z += nxt
+        np.subtract(nxt, u, out=z)
+        z *= np.float32((t - 1.0) / t_next)
+        z += nxt
         u, nxt = nxt, u
         t = t_next
     return u

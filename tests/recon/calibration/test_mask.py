@@ -271,34 +271,3 @@ def test_view_stack_is_float32_and_the_deconvolution_shows_progress(capsys):
                             deconvolution=how)
         assert "deconvolution" in capsys.readouterr().err
         np.testing.assert_array_equal(shown, quiet)
-
-
-def test_tv_deconvolution_fused_passes_change_no_bit(monkeypatch):
-    """The deconvolution with its element-wise passes fused (recon.kernels.fista_deconvolve)
-    gives the mask images of the NumPy expressions, bit for bit."""
-    from recon import kernels
-    from recon.calibration.mask import tv_deconvolve
-
-    if not kernels.enabled():
-        pytest.skip("Numba kernels switched off")
-    from recon.kernels import fista_deconvolve as kfd
-
-    rng = np.random.default_rng(7)
-    caps, boxes = _captures(_truth(rng), rng, noise=0.01, blur=1.65)
-    views = caps[None, :, 4:4 + HV, 3:3 + WM]
-    radii = np.full(len(OFFS), 1.65)
-    fused = tv_deconvolve(views.copy(), radii, iterations=5)
-
-    def spectral_step(spec, power, kd):
-        spec *= power
-        spec -= kd
-
-    def momentum(new, old, c, out):
-        np.subtract(new, old, out=out)
-        out *= c
-        out += new
-
-    monkeypatch.setattr(kfd, "spectral_step", spectral_step)
-    monkeypatch.setattr(kfd, "momentum", momentum)
-    plain = tv_deconvolve(views.copy(), radii, iterations=5)
-    assert np.array_equal(fused.view(np.uint32), plain.view(np.uint32))
