@@ -189,9 +189,9 @@ def capture(design, cube, wavelengths, *, wavelength_nm=None, repeats: int = 4, 
     ``singles``, a (n, Hs, Ws) float32 array, receives the first ``n`` repeats as they were
     read out, before averaging (the photon-transfer pairs).
     """
+    from recon.kernels import cores, each
     from sim.bands import check_cube
     from sim.frame import FrameModel, exposure, frame_metadata
-    from recon.kernels import each
     from sim.sensor import digitise
     from sim.transport.exact import SEEDS
 
@@ -206,8 +206,6 @@ def capture(design, cube, wavelengths, *, wavelength_nm=None, repeats: int = 4, 
     if repeats == 0:
         frame = digitise(ne, design, seed=seed, noise=False)
     else:
-        from recon.kernels import cores
-
         acc = np.zeros(ne.shape, np.float64)
         # Same exposure for every repeat (the lab does not re-expose between frames).  Each
         # repeat draws from its own seed, so they are read out in parallel (the draws and the

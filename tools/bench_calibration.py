@@ -1,6 +1,6 @@
 """The calibration's faster steps against the paths they replace, alternated in one process.
 
-Three steps of ``kaleidospec.calibrate`` (design ``--design``, default ``paper``), each timed
+Two steps of ``kaleidospec.calibrate`` (design ``--design``, default ``paper``), each timed
 as the reference path and the current one in turn, ``--repeat`` times (medians of the wall
 time and of the process's CPU time, all threads), with a check that both give the same bits:
 
@@ -11,21 +11,16 @@ time and of the process's CPU time, all threads), with a check that both give th
    ``sim.sensor.digitise`` on a thread per core, as ``capture`` now runs them;
 2. **flat-field gains** (``kaleidospec.calibrate.model_flat_gains``): the model of each band's
    white, 26 full forwards of the blurred model (reference) against one band's forward
-   (``band_forward``);
-3. **TV deconvolution** of one chunk of mask images (``recon.calibration.mask.tv_deconvolve``
-   on the calibration's own mask images of the centre view, as crops to deconvolve): the
-   element-wise passes in NumPy (reference) against ``recon.kernels.fista_deconvolve``.
-
-Steps 2 and 3 need the design's calibration in the cache (``kaleidospec calibrate``).
+   (``band_forward``); it needs the design's calibration in the cache (``kaleidospec
+   calibrate``) and a PSF (designs whose masks are deconvolved).
 
 Usage: python3 tools/bench_calibration.py [--design paper] [--repeat 3] [--repeats 4]
-                                          [--bands 9] [--json FILE]
+                                          [--json FILE]
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import os
 import time
@@ -104,56 +99,11 @@ def bench_flat_gains(cal, repeat):
                      lambda a, b: all(np.array_equal(x, y) for x, y in zip(a, b)))
 
 
-@contextlib.contextmanager
-def numpy_passes():
-    """The TV deconvolution's element-wise passes as the NumPy expressions they replace."""
-    from recon.kernels import fista_deconvolve as kfd
-
-    def spectral_step(spec, power, kd):
-        spec *= power
-        spec -= kd
-
-    def momentum(new, old, c, out):
-        np.subtract(new, old, out=out)
-        out *= c
-        out += new
-
-    saved = kfd.spectral_step, kfd.momentum
-    kfd.spectral_step, kfd.momentum = spectral_step, momentum
-    try:
-        yield
-    finally:
-        kfd.spectral_step, kfd.momentum = saved
-
-
-def bench_deconvolution(design, cal, repeat, bands):
-    from kaleidospec.calibrate import deconvolution_radii
-    from recon.calibration.mask import tv_deconvolve
-
-    radii = deconvolution_radii(design, cal.wavelengths)
-    if radii is None:
-        print("TV deconvolution: this design's masks are not deconvolved; skipped")
-        return None
-    crops = np.ascontiguousarray(cal.mask_images[:1, :bands])
-    r = radii[:bands]
-
-    def reference():
-        with numpy_passes():
-            return tv_deconvolve(crops.copy(), r)
-
-    def current():
-        return tv_deconvolve(crops.copy(), r)
-
-    return alternate(f"TV deconvolution ({bands} crops)", reference, current, repeat,
-                     lambda a, b: np.array_equal(a, b))
-
-
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--design", default="paper")
     p.add_argument("--repeat", type=int, default=3, help="alternations (medians kept)")
     p.add_argument("--repeats", type=int, default=4, help="noisy frames of a capture")
-    p.add_argument("--bands", type=int, default=9, help="crops of the deconvolution step")
     p.add_argument("--json", type=Path)
     args = p.parse_args(argv)
 
@@ -170,11 +120,9 @@ def main(argv=None):
     cal = load_cached(cache_dir(None), design.hash)
     if cal is None:
         print("no cached calibration of this design (kaleidospec calibrate first): the "
-              "flat-field and deconvolution steps are skipped")
-    else:
-        if cal.psf is not None:
-            report["flat_gains"] = bench_flat_gains(cal, args.repeat)
-        report["deconvolution"] = bench_deconvolution(design, cal, args.repeat, args.bands)
+              "flat-field step is skipped")
+    elif cal.psf is not None:
+        report["flat_gains"] = bench_flat_gains(cal, args.repeat)
     report["loadavg_end"] = os.getloadavg()
     print(f"load {report['loadavg_start'][0]:.2f} -> {report['loadavg_end'][0]:.2f}")
     if args.json:

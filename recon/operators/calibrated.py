@@ -338,14 +338,15 @@ class CalibratedCassi(LinearOperator):
             a = np.stack([v[3] for v in views])
             hi = max(1, int(max((a[k].max() + wvs[k] + 1 - self.oshape[2])
                                 for k in range(self.n_views))))
-            self._plan = dict(
-                a=a, c0=np.stack([v[4] for v in views]), c1=np.stack([v[5] for v in views]),
-                sub=np.stack([v[6] for v in views]),
-                ident=np.array([v[0] for v in views], np.bool_), wvs=wvs, indptr=indptr,
-                indices=(np.concatenate(indices) if indices else np.zeros(1, np.int32)),
-                data=(np.concatenate(data) if data else np.zeros(1, np.float32)),
-                vlo=vlo, vhi=vhi, rows=rows, zrows=max(zrows, 1),
-                lo=max(0, -int(a.min())), hi=hi)
+            self._plan = {
+                "a": a, "c0": np.stack([v[4] for v in views]),
+                "c1": np.stack([v[5] for v in views]), "sub": np.stack([v[6] for v in views]),
+                "ident": np.array([v[0] for v in views], np.bool_), "wvs": wvs,
+                "indptr": indptr,
+                "indices": np.concatenate(indices) if indices else np.zeros(1, np.int32),
+                "data": np.concatenate(data) if data else np.zeros(1, np.float32),
+                "vlo": vlo, "vhi": vhi, "rows": rows, "zrows": max(zrows, 1),
+                "lo": max(0, -int(a.min())), "hi": hi}
         return self._plan
 
     def _adjoint_kernel(self, y, base, scale, out):
