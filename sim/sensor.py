@@ -543,9 +543,9 @@ def digitise(
     shape = ne.shape
     flat = np.ascontiguousarray(ne).reshape(shape[0] if ne.ndim > 1 else 1, -1)
     rows = flat.shape[0]
-    # The counts clipped at the full well, as float32: integers up to the full well (far
-    # below 2**24), so exact, at half the memory of the draws' int64.
-    counts = np.empty(flat.shape, np.float32)
+    # The counts clipped at the full well, as float32 (half the memory of the draws' int64)
+    # where every integer up to the full well is exact in it, float64 otherwise.
+    counts = np.empty(flat.shape, np.float32 if fw <= 2.0 ** 24 else np.float64)
     for a in range(0, rows, _READOUT_ROWS):
         b = min(rows, a + _READOUT_ROWS)
         _clip_counts(rng.poisson(flat[a:b]), fw, counts[a:b])
@@ -582,7 +582,8 @@ def digitise_reference(electrons: np.ndarray, design, *, rng: np.random.Generato
 
 @njit(cache=True, nogil=True)
 def _clip_counts(counts, full_well, out):
-    """``out = min(counts, full_well)`` (float32; exact for counts below 2**24)."""
+    """``out = min(counts, full_well)`` (exact: ``out`` holds every integer up to the full
+    well)."""
     c, o = counts.reshape(-1), out.reshape(-1)
     for i in range(c.size):
         o[i] = min(np.float64(c[i]), full_well)

@@ -135,6 +135,10 @@ def test_digitise_matches_numpy_reference_to_the_bit(shape):
             b = sensor.digitise_reference(x, d, seed=seed)
             assert a.dtype == np.float32 and a.shape == b.shape
             assert np.array_equal(a.view(np.uint32), b.view(np.uint32))
+    deep = SMALL.replace(bit_depth=24, full_well_e=float(2**26 - 1))  # past float32 integers
+    big = rng.uniform(0, 1.2 * deep.full_well_e, shape)
+    assert np.array_equal(sensor.digitise(big, deep, seed=2),
+                          sensor.digitise_reference(big, deep, seed=2))
     quiet = d.replace(read_noise_e=0.0)
     assert np.array_equal(sensor.digitise(e, quiet, seed=3),
                           sensor.digitise_reference(e, quiet, seed=3))
