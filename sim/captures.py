@@ -189,6 +189,7 @@ def capture(design, cube, wavelengths, *, wavelength_nm=None, repeats: int = 4, 
     ``singles``, a (n, Hs, Ws) float32 array, receives the first ``n`` repeats as they were
     read out, before averaging (the photon-transfer pairs).
     """
+    from recon.kernels import cores, each
     from sim.bands import check_cube
     from sim.frame import FrameModel, exposure, frame_metadata
     from sim.sensor import digitise
@@ -206,12 +207,16 @@ def capture(design, cube, wavelengths, *, wavelength_nm=None, repeats: int = 4, 
         frame = digitise(ne, design, seed=seed, noise=False)
     else:
         acc = np.zeros(ne.shape, np.float64)
-        for r in range(repeats):
-            # Same exposure for every repeat (the lab does not re-expose between frames).
-            one = digitise(ne, design, seed=seed + r, noise=True)
-            if singles is not None and r < len(singles):
-                singles[r] = one
-            acc += one
+        # Same exposure for every repeat (the lab does not re-expose between frames).  Each
+        # repeat draws from its own seed, so they are read out in parallel (the draws and the
+        # readout release the GIL), a pair at a time on two cores, and summed in their order.
+        for r0 in range(0, repeats, max(1, cores())):
+            group = range(r0, min(repeats, r0 + max(1, cores())))
+            for r, one in zip(group, each(lambda r: digitise(ne, design, seed=seed + r,
+                                                             noise=True), group)):
+                if singles is not None and r < len(singles):
+                    singles[r] = one
+                acc += one
         frame = (acc / repeats).astype(np.float32)
     meta = frame_metadata(design, model.bands_nm, wavelength_nm=wavelength_nm, seed=seed,
                           method="transport", spp=None, trace_seed=model.trace_seed,

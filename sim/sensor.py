@@ -43,6 +43,7 @@ __all__ = [
     "ccs_multiplier",
     "mean_electrons",
     "digitise",
+    "digitise_reference",
     "capture",
 ]
 
@@ -503,6 +504,11 @@ def mean_electrons(
     return out
 
 
+#: Rows of a frame per block of :func:`digitise`'s read noise (the draws continue one stream,
+#: so the block size does not change them): the frame's float64 normals are never all held.
+_READOUT_ROWS = 256
+
+
 def digitise(
     electrons: np.ndarray,
     design,
@@ -515,7 +521,49 @@ def digitise(
 
     Without ``noise`` the mean is clipped at the full well and quantised. ``rng`` (or ``seed``)
     makes the noise reproducible.
+
+    The draws are NumPy's (all the Poisson counts of the frame, then one normal a pixel, in
+    the frame's order); the arithmetic after them runs in one compiled pass
+    (:func:`_readout`) over blocks of rows, the read noise drawn block by block (the same
+    stream), and gives the same frame to the bit as :func:`digitise_reference`, the plain
+    NumPy expression of the model, which the tests compare it with.
     """
+    ne = np.asarray(electrons)
+    if not np.issubdtype(ne.dtype, np.floating):
+        ne = ne.astype(np.float64)
+    if not np.all(np.isfinite(ne)) or np.any(ne < 0):
+        raise InputError("electron counts must be finite and non-negative")
+    fw = float(design.full_well_e)
+    gain = float(design.gain_e_per_dn)
+    top = float(design.max_dn)
+    if not noise:
+        return digitise_reference(ne, design, noise=False)
+    if rng is None:
+        rng = np.random.default_rng(seed)
+    shape = ne.shape
+    flat = np.ascontiguousarray(ne).reshape(shape[0] if ne.ndim > 1 else 1, -1)
+    rows = flat.shape[0]
+    # The counts clipped at the full well, as float32 (half the memory of the draws' int64)
+    # where every integer up to the full well is exact in it, float64 otherwise.
+    counts = np.empty(flat.shape, np.float32 if fw <= 2.0 ** 24 else np.float64)
+    for a in range(0, rows, _READOUT_ROWS):
+        b = min(rows, a + _READOUT_ROWS)
+        _clip_counts(rng.poisson(flat[a:b]), fw, counts[a:b])
+    sigma = float(design.read_noise_e)
+    out = np.empty(flat.shape, np.float32)
+    for a in range(0, rows, _READOUT_ROWS):
+        b = min(rows, a + _READOUT_ROWS)
+        # normal(0, s) is 0 + s * standard_normal() draw for draw: the same stream.
+        z = rng.standard_normal(size=(b - a, flat.shape[1])) if sigma > 0 else None
+        _readout(counts[a:b], z if z is not None else counts[a:b], sigma if z is not None
+                 else 0.0, z is not None, gain, top, out[a:b])
+    return out.reshape(shape)
+
+
+def digitise_reference(electrons: np.ndarray, design, *, rng: np.random.Generator | None = None,
+                       seed: int | None = None, noise: bool = True) -> np.ndarray:
+    """:func:`digitise` in plain NumPy (whole-frame float64 passes): the model as written in the
+    module notes, the reference the compiled path is tested against."""
     ne = np.asarray(electrons, dtype=np.float64)
     if not np.all(np.isfinite(ne)) or np.any(ne < 0):
         raise InputError("electron counts must be finite and non-negative")
@@ -530,6 +578,30 @@ def digitise(
     else:
         e = np.minimum(ne, fw)
     return np.clip(np.rint(e / gain), 0, design.max_dn).astype(np.float32)
+
+
+@njit(cache=True, nogil=True)
+def _clip_counts(counts, full_well, out):
+    """``out = min(counts, full_well)`` (exact: ``out`` holds every integer up to the full
+    well)."""
+    c, o = counts.reshape(-1), out.reshape(-1)
+    for i in range(c.size):
+        o[i] = min(np.float64(c[i]), full_well)
+
+
+@njit(cache=True, nogil=True)
+def _readout(counts, z, sigma, read_noise, gain, top, out):
+    """``out = clip(rint((counts + sigma z) / gain), 0, top)`` in float64, then float32, element
+    by element as NumPy's whole-array expression rounds it (no fast-math: the sum, the
+    division and the rounding are IEEE's, so the frame is the same to the bit)."""
+    c, o = counts.reshape(-1), out.reshape(-1)
+    zz = z.reshape(-1)
+    for i in range(c.size):
+        e = np.float64(c[i])
+        if read_noise:
+            e = e + (0.0 + sigma * zz[i])
+        d = np.rint(e / gain)
+        o[i] = np.float32(min(max(d, 0.0), top))
 
 
 def capture(

@@ -42,10 +42,17 @@ from numba import prange
 
 from recon.kernels import jit
 
-__all__ = ["forward_view", "shift_adjoint", "warp_adjoint"]
+__all__ = ["forward_view", "shift_adjoint", "warp_adjoint", "adjoint_views", "adjoint_rows",
+           "ADJOINT_TASK_BYTES", "ADJOINT_MAX_ZROWS"]
 
 #: Rows per parallel task: enough to amortise the scratch allocation, few enough to balance.
 _ROWS = 8
+#: Bytes of a task's rows of every band in :func:`adjoint_views` (:func:`adjoint_rows`): with
+#: the view rows they gather from, the task's scratch stays in a core's L2 cache.
+ADJOINT_TASK_BYTES = 1 << 18
+#: The most view rows a task of :func:`adjoint_views` may need (warps that spread a cube row
+#: over more, e.g. a strong rotation, take the view-by-view kernels).
+ADJOINT_MAX_ZROWS = 32
 
 
 @jit(refcount=False)
@@ -246,3 +253,138 @@ def warp_adjoint(z, indptr, indices, data, mode, base, scale, out):
             _gather_row(z, indptr, indices, data, yy, s)
             for l in range(n_bands):
                 _combine(out[l, yy], s[l], mode, base[l, yy], scale)
+
+
+def adjoint_rows(n_bands: int, h: int, w: int, cores: int) -> int:
+    """Cube rows per task of :func:`adjoint_views`: as many as :data:`ADJOINT_TASK_BYTES`
+    holds (at least 8: a task remakes the one or two view rows it shares with the next, so
+    fewer rows would remake a larger share), while every core still gets four tasks."""
+    fit = ADJOINT_TASK_BYTES // max(1, 4 * n_bands * w)
+    share = -(-h // (4 * max(1, cores)))
+    return int(max(1, min(max(8, fit), max(8, share), h)))
+
+
+@jit(refcount=False)
+def _view_z_rows(y, cm, a, c0, c1, sub, r0, r1, wv, lo, cy, z):
+    r""":math:`z_l` of one view on its rows ``r0 .. r1 - 1`` into ``z`` (``(L, n)``, row
+    ``i`` at ``(i - r0) wv``), as :func:`shift_adjoint` makes them; ``cy`` a zero-padded row
+    scratch (``lo`` zeros before the crop)."""
+    n_bands = a.shape[0]
+    wm = y.shape[1]
+    cyr = cy[lo:lo + wm]
+    for i in range(r0, r1):
+        yr = y[i]
+        o = (i - r0) * wv
+        for l in range(n_bands):
+            cr = cm[l, i]
+            for x_ in range(wm):
+                cyr[x_] = cr[x_] * yr[x_]
+            al = a[l] + lo
+            b0 = c0[l]
+            p0 = cy[al:al + wv]
+            zr = z[l, o:o + wv]
+            if sub[l]:
+                b1 = c1[l]
+                p1 = cy[al + 1:al + 1 + wv]
+                for j in range(wv):
+                    zr[j] = b0 * p0[j] + b1 * p1[j]
+            else:
+                for j in range(wv):
+                    zr[j] = b0 * p0[j]
+
+
+@jit(refcount=False)
+def _gather_add(z, shift, indptr, indices, data, yy, w, acc, t):
+    r"""``acc[l, t, :]`` :math:`\mathrel{+}= (W^\top z_l)` on cube row ``yy`` for every band,
+    ``z`` holding the view's flat pixels from ``shift`` on."""
+    n_bands = z.shape[0]
+    base = yy * w
+    for x_ in range(w):
+        r = base + x_
+        for e in range(indptr[r], indptr[r + 1]):
+            d = data[e]
+            c = indices[e] - shift
+            for l in range(n_bands):
+                acc[l, t, x_] += d * z[l, c]
+
+
+@jit(parallel=True)
+def adjoint_views(y, cm, a, c0, c1, sub, ident, wvs, indptr, indices, data, vlo, vhi, rows,
+                  zrows, lo, hi, has_base, base, scale, out):
+    r""":math:`H^\top y` of every view in one pass over the cube (overwrites ``out``), or
+    :math:`b + s H^\top y` with ``has_base``.
+
+    Each task is ``rows`` cube rows: for every view it makes :math:`z` on the view rows that
+    those cube rows gather from (``vlo[k, task] .. vhi[k, task] - 1``, at most ``zrows``) into a
+    scratch that stays in cache, gathers :math:`W_k^\top z` (an identity view: :math:`z`
+    itself) into the task's rows, and writes them once.  Where :func:`shift_adjoint` and
+    :func:`warp_adjoint` view by view write every view's :math:`z` to memory and read it back
+    and read and write the whole cube once a view, this reads the mask images and the
+    measurement once and writes the cube once (view rows shared by two tasks are made twice).
+
+    Parameters
+    ----------
+    y : ndarray, shape (K, Hv, Wm)
+    cm : ndarray, shape (K, L, Hv, Wm)
+    a, c0, c1, sub : ndarray, shape (K, L)
+        As for :func:`forward_view`, one row a view.
+    ident : ndarray of bool, shape (K,)
+        Identity views (their view image is the cube's grid; no CSR read).
+    wvs : ndarray of int64, shape (K,)
+        The views' widths :math:`W_v`.
+    indptr : ndarray of int64, shape (K, H*W + 1)
+        Each view's :math:`W_k^\top` CSR row pointers into the shared ``indices``/``data``.
+    indices : ndarray of int32
+    data : ndarray
+    vlo, vhi : ndarray of int64, shape (K, tasks)
+        The view rows each task needs.
+    rows, zrows : int
+        Cube rows a task, and the most view rows a task needs.
+    lo, hi : int
+        Zero columns before and after the crop in the row scratch (as :func:`shift_adjoint`).
+    has_base : bool
+    base : ndarray, shape (L, H, W)
+        :math:`b` (read with ``has_base``).
+    scale : float
+    out : ndarray, shape (L, H, W)
+        May be ``base``: each task reads its rows of ``base`` before it writes them.
+    """
+    n_views = y.shape[0]
+    n_bands, h, w = out.shape
+    wm = y.shape[2]
+    wmax = 1
+    for k in range(n_views):
+        wmax = max(wmax, wvs[k])
+    n_tasks = (h + rows - 1) // rows
+    for task in prange(n_tasks):
+        y0 = task * rows
+        y1 = min(h, y0 + rows)
+        acc = np.zeros((n_bands, rows, w), dtype=out.dtype)
+        z = np.empty((n_bands, zrows * wmax), dtype=out.dtype)
+        cy = np.zeros(lo + wm + hi, dtype=out.dtype)
+        for k in range(n_views):
+            r0, r1 = vlo[k, task], vhi[k, task]
+            if r1 <= r0:
+                continue
+            wv = wvs[k]
+            _view_z_rows(y[k], cm[k], a[k], c0[k], c1[k], sub[k], r0, r1, wv, lo, cy, z)
+            if ident[k]:
+                for yy in range(y0, y1):
+                    o = (yy - r0) * wv
+                    for l in range(n_bands):
+                        ar, zr = acc[l, yy - y0], z[l, o:o + w]
+                        for x_ in range(w):
+                            ar[x_] += zr[x_]
+            else:
+                for yy in range(y0, y1):
+                    _gather_add(z, r0 * wv, indptr[k], indices, data, yy, w, acc, yy - y0)
+        for yy in range(y0, y1):
+            for l in range(n_bands):
+                o, ar = out[l, yy], acc[l, yy - y0]
+                if has_base:
+                    b = base[l, yy]
+                    for x_ in range(w):
+                        o[x_] = b[x_] + scale * ar[x_]
+                else:
+                    for x_ in range(w):
+                        o[x_] = ar[x_]

@@ -34,6 +34,7 @@ import numpy as np
 from recon import kernels
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
+from recon.operators.dispersion import work_dtype
 
 #: Rademacher probes of :meth:`BlurredOperator.mean_row_norm_sq` (fixed seed).
 NORM_PROBES = 4
@@ -113,6 +114,18 @@ class BlurredOperator(LinearOperator):
         if y.shape != self.oshape:
             raise ValueError(f"{type(self).__name__}: input shape {y.shape} != {self.oshape}")
         return self.op.adjoint_add(convolve_views(y, self._flipped), base, scale, out)
+
+    def band_forward(self, band: int, image) -> np.ndarray:
+        r""":math:`P * (A f)` for the cube that is ``image`` in band ``band`` and zero
+        elsewhere, through the inner operator's ``band_forward`` where it has one (the
+        blur is the same; see :meth:`CalibratedCassi.band_forward
+        <recon.operators.calibrated.CalibratedCassi.band_forward>`), else the full forward."""
+        inner = getattr(self.op, "band_forward", None)
+        if inner is None:
+            x = np.zeros(self.ishape, dtype=work_dtype(np.asarray(image)))
+            x[band] = image
+            return self.forward(x)
+        return convolve_views(inner(band, image), self.kernel)
 
     def mean_row_norm_sq(self) -> float:
         r"""Mean of :math:`\|a_i\|^2` over the rows with any weight: :math:`\|A\|_F^2 / n` by

@@ -117,6 +117,7 @@ class CalibratedCassi(LinearOperator):
         self._taps = ((1.0 - t) * scale, t * scale)
         self._cmasks = InPrecision(self.mask_images)
         self._kernel_views = None
+        self._plan = None
         self._row_norms = None
         super().__init__(cs, (k, hv, wm))
 
@@ -207,14 +208,58 @@ class CalibratedCassi(LinearOperator):
         if y.shape != self.oshape:
             raise ValueError(f"{type(self).__name__}: input shape {y.shape} != {self.oshape}")
         target = out
-        # Views after the first add to the output, so the output cannot be the base then.
-        if out is None or (self.n_views > 1 and np.may_share_memory(out, base)):
+        # View by view, views after the first add to the output, so the output cannot be the
+        # base then (the one-pass kernel reads each row of the base before writing it).
+        if out is None or (self.n_views > 1 and np.may_share_memory(out, base)
+                           and not self._fused_plan()):
             target = np.empty(self.ishape, dtype=dt)
         self._adjoint_kernel(np.ascontiguousarray(y, dtype=dt), base, scale, target)
         if out is not None and target is not out:
             np.copyto(out, target)
             return out
         return target
+
+    def band_forward(self, band: int, image) -> np.ndarray:
+        r""":math:`H f` for the cube :math:`f` that is ``image`` in band ``band`` and zero in
+        every other band: one band's part of the sum (e.g. a flat field's model, band by band).
+
+        In float32 with the kernels only that band is warped, masked and shifted (the other
+        bands add exact zeros to the sum, so the result is :meth:`forward`'s to the bit);
+        otherwise :meth:`forward` of the zero-padded cube, the reference.
+
+        Parameters
+        ----------
+        band : int
+        image : (H, W) array_like
+
+        Returns
+        -------
+        (K, Hv, Wm) ndarray
+        """
+        n_bands, h, w = self.ishape
+        if isinstance(band, bool) or int(band) != band or not 0 <= int(band) < n_bands:
+            raise InputError(f"band must be an integer in [0, {n_bands}), got {band!r}")
+        band = int(band)
+        img = np.asarray(image)
+        if img.shape != (h, w):
+            raise InputError(f"a band image must be {(h, w)}, got {img.shape}")
+        img = img.astype(work_dtype(img), copy=False)
+        if not kernels.usable(img):
+            x = np.zeros(self.ishape, dtype=img.dtype)
+            x[band] = img
+            return self.forward(x)
+        from recon.kernels import calibrated as kcal
+
+        out = np.empty(self.oshape, dtype=np.float32)
+        xf = np.ascontiguousarray(img).reshape(1, -1)
+        sl = slice(band, band + 1)
+        with kernels.threads():
+            for k, (ident, fwd, _, a, c0, c1, sub) in enumerate(self._kernel_arrays()):
+                ip, ix, dv = fwd if fwd is not None else _NO_CSR
+                kcal.forward_view(xf, self.mask_images[k, sl], a[sl], c0[sl], c1[sl],
+                                  sub[sl], ident, ip, ix, dv, self.warps[k].out_shape[1],
+                                  out[k])
+        return out
 
     def _kernel_arrays(self):
         """Per view the arrays of :mod:`recon.kernels.calibrated` (float32; made once):
@@ -249,9 +294,85 @@ class CalibratedCassi(LinearOperator):
                                   self.warps[k].out_shape[1], out[k])
         return out
 
+    def _fused_plan(self):
+        """The arrays of :func:`recon.kernels.calibrated.adjoint_views` (made once), or False
+        where a task would need more view rows than its cache-sized scratch holds."""
+        if self._plan is None:
+            from recon.kernels import calibrated as kcal
+
+            views = self._kernel_arrays()
+            n_bands, h, w = self.ishape
+            rows = kcal.adjoint_rows(n_bands, h, w, kernels.cores())
+            n_tasks = (h + rows - 1) // rows
+            first = np.arange(n_tasks) * rows
+            last = np.minimum(first + rows, h)
+            vlo = np.zeros((self.n_views, n_tasks), np.int64)
+            vhi = np.zeros((self.n_views, n_tasks), np.int64)
+            indptr = np.zeros((self.n_views, h * w + 1), np.int64)
+            indices, data, nnz = [], [], 0
+            for k, (ident, _, adj, a, c0, c1, sub) in enumerate(views):
+                wv = self.warps[k].out_shape[1]
+                if ident:
+                    vlo[k], vhi[k] = first, last
+                    indptr[k] = nnz
+                    continue
+                ip, ix, dv = adj
+                indptr[k] = ip.astype(np.int64) + nnz
+                indices.append(ix)
+                data.append(dv)
+                nnz += ix.size
+                # The span of view rows each task's entries of W^T read: the tasks' entries
+                # are consecutive runs of the CSR arrays, so a reduction from each non-empty
+                # task's start to the next one's is over that task's entries exactly.
+                vrow = ix.astype(np.int64) // wv
+                start, stop = ip[first * w].astype(np.int64), ip[last * w].astype(np.int64)
+                some = stop > start
+                if some.any():
+                    vlo[k, some] = np.minimum.reduceat(vrow, start[some])
+                    vhi[k, some] = np.maximum.reduceat(vrow, start[some]) + 1
+            zrows = int((vhi - vlo).max()) if vhi.size else 0
+            if zrows > kcal.ADJOINT_MAX_ZROWS:
+                self._plan = False
+                return self._plan
+            wvs = np.array([wp.out_shape[1] for wp in self.warps], np.int64)
+            a = np.stack([v[3] for v in views])
+            hi = max(1, int(max((a[k].max() + wvs[k] + 1 - self.oshape[2])
+                                for k in range(self.n_views))))
+            self._plan = {
+                "a": a, "c0": np.stack([v[4] for v in views]),
+                "c1": np.stack([v[5] for v in views]), "sub": np.stack([v[6] for v in views]),
+                "ident": np.array([v[0] for v in views], np.bool_), "wvs": wvs,
+                "indptr": indptr,
+                "indices": np.concatenate(indices) if indices else np.zeros(1, np.int32),
+                "data": np.concatenate(data) if data else np.zeros(1, np.float32),
+                "vlo": vlo, "vhi": vhi, "rows": rows, "zrows": max(zrows, 1),
+                "lo": max(0, -int(a.min())), "hi": hi}
+        return self._plan
+
     def _adjoint_kernel(self, y, base, scale, out):
-        r"""``out`` :math:`= H^\top y` (``base`` None) or :math:`b + s H^\top y`; ``out`` may be
-        ``base`` only for one view."""
+        r"""``out`` :math:`= H^\top y` (``base`` None) or :math:`b + s H^\top y`: all views in
+        one pass (:func:`recon.kernels.calibrated.adjoint_views`; ``out`` may be ``base``),
+        or, where a warp spreads a cube row over too many view rows, view by view (``out``
+        may then be ``base`` only for one view)."""
+        from recon.kernels import calibrated as kcal
+
+        plan = self._fused_plan()
+        if plan:
+            b = out if base is None else np.ascontiguousarray(base, dtype=np.float32)
+            with kernels.threads():
+                kcal.adjoint_views(y, self.mask_images, plan["a"], plan["c0"], plan["c1"],
+                                   plan["sub"], plan["ident"], plan["wvs"], plan["indptr"],
+                                   plan["indices"], plan["data"], plan["vlo"], plan["vhi"],
+                                   plan["rows"], plan["zrows"], plan["lo"], plan["hi"],
+                                   base is not None, b, np.float32(scale), out)
+            return out
+        return self._adjoint_by_view(y, base, scale, out)
+
+    def _adjoint_by_view(self, y, base, scale, out):
+        r"""``out`` :math:`= H^\top y` (``base`` None) or :math:`b + s H^\top y`, view by view
+        (:func:`~recon.kernels.calibrated.shift_adjoint`,
+        :func:`~recon.kernels.calibrated.warp_adjoint`); ``out`` may be ``base`` only for one
+        view."""
         from recon.kernels import calibrated as kcal
 
         dt = np.float32
