@@ -42,6 +42,7 @@ from recon.priors.subspace import SubspaceTV, expand, subspace_weight
 __all__ = ["SubspaceNLR", "reference_grid", "denoise_nonlocal",
            "make_subspace_nlr", "shrink_factors"]
 
+
 def reference_grid(n: int, patch: int, stride: int) -> np.ndarray:
     """Top-left corners along one axis of ``n`` pixels: every ``stride``-th of
     ``0 .. n - patch``, and ``n - patch`` itself, so that the patches cover every pixel."""
@@ -69,7 +70,7 @@ def _check_geometry(shape, patch, radius, group):
 
 
 def denoise_nonlocal(z: np.ndarray, sigmas: np.ndarray, *, strength: float = 1.0,
-                     patch: int = 6, radius: int = 10, group: int = 16, stride: int = 4,
+                     patch: int = 4, radius: int = 10, group: int = 24, stride: int = 4,
                      threads: int | None = None) -> np.ndarray:
     r"""The non-local low-rank estimate of the images ``z`` ``(k, H, W)``.
 
@@ -142,8 +143,7 @@ def _denoise_numpy(z, scale, ry, rx, patch, radius, m, strength):
     """The plain NumPy reference of :func:`denoise_nonlocal` (one group at a time)."""
     k, h, w = z.shape
     zs = z * scale[:, None, None]
-    guide = zs[0]
-    # Every patch of every image as a row: (H-p+1, W-p+1, k, p, p).
+    # Every patch of every image: (H-p+1, W-p+1, k, p, p); the guide is the first image's.
     win = np.lib.stride_tricks.sliding_window_view(zs, (patch, patch), axis=(1, 2))
     win = np.moveaxis(win, 0, 2)
     gwin = win[:, :, 0].reshape(win.shape[0], win.shape[1], -1)
@@ -205,8 +205,8 @@ class SubspaceNLR(SubspaceTV):
 
     name = "subspace-nlr"
 
-    def __init__(self, weight: float, rank: int | None = None, *, strength: float = 0.6,
-                 warmup: int = 60, patch: int = 6, radius: int = 10, group: int = 16,
+    def __init__(self, weight: float, rank: int | None = None, *, strength: float = 1.0,
+                 warmup: int = 60, patch: int = 4, radius: int = 10, group: int = 24,
                  stride: int = 4, tv_iters: int = 2, isotropic: bool = True,
                  threads: int | None = None):
         super().__init__(weight, rank=rank, tv_iters=tv_iters, isotropic=isotropic,
@@ -259,8 +259,8 @@ class SubspaceNLR(SubspaceTV):
         return None
 
 
-def make_subspace_nlr(ctx, *, rank: int | None = None, strength: float = 0.6,
-                      warmup: int = 60, patch: int = 6, radius: int = 10, group: int = 16,
+def make_subspace_nlr(ctx, *, rank: int | None = None, strength: float = 1.0,
+                      warmup: int = 60, patch: int = 4, radius: int = 10, group: int = 24,
                       stride: int = 4, tv_iters: int = 2, warm_dual: bool = True,
                       isotropic: bool = True) -> SubspaceNLR:
     """The registry's factory (:func:`recon.priors.make_prior` ``("subspace-nlr")``), with the
