@@ -37,7 +37,7 @@ import numpy as np
 
 from recon import kernels
 from recon.errors import InputError
-from recon.priors.subspace import SubspaceTV, expand, project, subspace_weight
+from recon.priors.subspace import SubspaceTV, expand, subspace_weight
 
 __all__ = ["SubspaceNLR", "reference_grid", "denoise_nonlocal",
            "make_subspace_nlr", "shrink_factors"]
@@ -71,8 +71,7 @@ def _check_geometry(shape, patch, radius, group):
 
 def denoise_nonlocal(z: np.ndarray, sigmas: np.ndarray, *, strength: float = 1.0,
                      patch: int = 4, radius: int = 10, group: int = 24, stride: int = 4,
-                     guide: np.ndarray | None = None, threads: int | None = None
-                     ) -> np.ndarray:
+                     threads: int | None = None) -> np.ndarray:
     r"""The non-local low-rank estimate of the images ``z`` ``(k, H, W)``.
 
     Parameters
@@ -86,8 +85,6 @@ def denoise_nonlocal(z: np.ndarray, sigmas: np.ndarray, *, strength: float = 1.0
     patch, radius, group, stride : int
         Patch side, half-width of the search window, patches per group, stride of the
         reference grid.
-    guide : ndarray, shape (H, W), optional
-        The image the block matching compares (in the units of ``z[0]``); ``z[0]`` if omitted.
 
     Returns
     -------
@@ -103,14 +100,10 @@ def denoise_nonlocal(z: np.ndarray, sigmas: np.ndarray, *, strength: float = 1.0
     m = _check_geometry((h, w), patch, radius, group)
     scale = 1.0 / sig
     ry, rx = _references((h, w), patch, stride)
-    if guide is None:
-        guide = z[0]
-    elif np.shape(guide) != (h, w):
-        raise InputError(f"the guide must be one {h}x{w} image, got shape {np.shape(guide)}")
     if kernels.usable(z):
         from recon.kernels import nonlocal_lowrank as kn
 
-        guide = np.ascontiguousarray(np.asarray(guide, np.float32)[None] * np.float32(scale[0]))
+        guide = np.ascontiguousarray(z[:1] * np.float32(scale[0]))
         idx_y = np.empty((ry.size, m), np.int64)
         idx_x = np.empty((ry.size, m), np.int64)
         filt = np.empty((ry.size, m, m))
@@ -127,7 +120,7 @@ def denoise_nonlocal(z: np.ndarray, sigmas: np.ndarray, *, strength: float = 1.0
             kn.normalise(acc, count, out)
         return out
     return _denoise_numpy(z.astype(np.float64), scale, ry, rx, patch, radius, m,
-                          float(strength), np.asarray(guide, np.float64) * scale[0])
+                          float(strength))
 
 
 def shrink_factors(s2: np.ndarray, d: int, m: int, sigma: float) -> np.ndarray:
@@ -146,15 +139,14 @@ def shrink_factors(s2: np.ndarray, d: int, m: int, sigma: float) -> np.ndarray:
     return np.where(keep, root / np.where(keep, y2, 1.0), 0.0)
 
 
-def _denoise_numpy(z, scale, ry, rx, patch, radius, m, strength, guide):
+def _denoise_numpy(z, scale, ry, rx, patch, radius, m, strength):
     """The plain NumPy reference of :func:`denoise_nonlocal` (one group at a time)."""
     k, h, w = z.shape
     zs = z * scale[:, None, None]
-    # Every patch of every image: (H-p+1, W-p+1, k, p, p), and of the guide.
+    # Every patch of every image: (H-p+1, W-p+1, k, p, p); the guide is the first image's.
     win = np.lib.stride_tricks.sliding_window_view(zs, (patch, patch), axis=(1, 2))
     win = np.moveaxis(win, 0, 2)
-    gwin = np.lib.stride_tricks.sliding_window_view(guide, (patch, patch))
-    gwin = gwin.reshape(gwin.shape[0], gwin.shape[1], -1)
+    gwin = win[:, :, 0].reshape(win.shape[0], win.shape[1], -1)
     acc = np.zeros_like(z)
     count = np.zeros((h, w))
     d = k * patch * patch
@@ -207,9 +199,6 @@ class SubspaceNLR(SubspaceTV):
         :math:`t_0`: calls of the subspace-TV prox before the non-local denoiser.
     patch, radius, group, stride
         The denoiser's settings (:func:`denoise_nonlocal`).
-    match_previous : bool
-        Match patches on the first coefficient image of the previous call's output (the
-        denoised iterate) instead of the input's (which carries the solver's fresh artefacts).
     tv_iters, isotropic, threads
         As :class:`~recon.priors.subspace.SubspaceTV`.
     """
@@ -218,8 +207,8 @@ class SubspaceNLR(SubspaceTV):
 
     def __init__(self, weight: float, rank: int | None = None, *, strength: float = 1.0,
                  warmup: int = 60, patch: int = 4, radius: int = 10, group: int = 24,
-                 stride: int = 4, match_previous: bool = True, tv_iters: int = 2,
-                 isotropic: bool = True, threads: int | None = None):
+                 stride: int = 4, tv_iters: int = 2, isotropic: bool = True,
+                 threads: int | None = None):
         super().__init__(weight, rank=rank, tv_iters=tv_iters, isotropic=isotropic,
                          threads=threads)
         strength = float(strength)
@@ -238,48 +227,32 @@ class SubspaceNLR(SubspaceTV):
         self.warmup = int(warmup)
         self.patch, self.radius = int(patch), int(radius)
         self.group, self.stride = int(group), int(stride)
-        self.match_previous = bool(match_previous)
         self.calls = 0
-        self._guide: np.ndarray | None = None
 
     def reset(self) -> None:
-        """Forget the basis, the TV dual and the guide, and start again with the warm-up."""
+        """Forget the basis and the TV dual, and start again with the warm-up."""
         super().reset()
         self.calls = 0
-        self._guide = None
 
     def describe(self) -> dict:
         return {"prior": self.name, "weight": self.weight, "rank": self.rank,
                 "strength": self.strength, "warmup": self.warmup, "patch": self.patch,
-                "radius": self.radius, "group": self.group, "stride": self.stride,
-                "match_previous": self.match_previous}
+                "radius": self.radius, "group": self.group, "stride": self.stride}
 
     def prox(self, v: np.ndarray, step: float, out: np.ndarray | None = None) -> np.ndarray:
         r"""The denoising step of call :math:`t` (class notes), into ``out`` if given (``out``
         may be ``v``)."""
         self.calls += 1
         if self.calls <= self.warmup:
-            out = super().prox(v, step, out)
-        else:
-            v, step, rank = self._check(v, step)
-            e, z = self._coefficients(v, rank)
-            sigma = self.strength * step * self.weight
-            if sigma > 0 and min(z.shape[1:]) >= self.patch:
-                guide = self._guide if (self._guide is not None
-                                        and self._guide.shape == z.shape[1:]) else None
-                z = denoise_nonlocal(z, np.full(z.shape[0], sigma), patch=self.patch,
-                                     radius=self.radius, group=self.group,
-                                     stride=self.stride, guide=guide,
-                                     threads=self.threads).astype(v.dtype, copy=False)
-            out = expand(e, np.ascontiguousarray(z), out)
-        if self.match_previous and self.calls >= self.warmup:
-            # The next call matches patches on this output's first coefficient image: the
-            # denoised iterate, not the next input (the projection's artefacts added back).
-            # The basis keeps its signs from call to call (leading_basis), so the image
-            # stays comparable.
-            e1 = np.ascontiguousarray(self.basis[:, :1]).astype(out.dtype)
-            self._guide = project(e1, np.ascontiguousarray(out))[0]
-        return out
+            return super().prox(v, step, out)
+        v, step, rank = self._check(v, step)
+        e, z = self._coefficients(v, rank)
+        sigma = self.strength * step * self.weight
+        if sigma > 0 and min(z.shape[1:]) >= self.patch:
+            z = denoise_nonlocal(z, np.full(z.shape[0], sigma), patch=self.patch,
+                                 radius=self.radius, group=self.group, stride=self.stride,
+                                 threads=self.threads).astype(v.dtype, copy=False)
+        return expand(e, np.ascontiguousarray(z), out)
 
     def value(self, x: np.ndarray) -> None:
         """None: a plug-and-play denoiser defines no :math:`\\varphi`."""
@@ -288,12 +261,11 @@ class SubspaceNLR(SubspaceTV):
 
 def make_subspace_nlr(ctx, *, rank: int | None = None, strength: float = 1.0,
                       warmup: int = 60, patch: int = 4, radius: int = 10, group: int = 24,
-                      stride: int = 4, match_previous: bool = True, tv_iters: int = 2,
-                      warm_dual: bool = True, isotropic: bool = True) -> SubspaceNLR:
+                      stride: int = 4, tv_iters: int = 2, warm_dual: bool = True,
+                      isotropic: bool = True) -> SubspaceNLR:
     """The registry's factory (:func:`recon.priors.make_prior` ``("subspace-nlr")``), with the
     weight of :func:`~recon.priors.subspace.subspace_weight` (the caller's TV weight, or the
     noise rule); ``warm_dual`` is accepted for the TV options' sake (the dual is kept)."""
     return SubspaceNLR(subspace_weight(ctx), rank=rank, strength=strength, warmup=warmup,
                        patch=patch, radius=radius, group=group, stride=stride,
-                       match_previous=match_previous, tv_iters=tv_iters, isotropic=isotropic,
-                       threads=ctx.threads)
+                       tv_iters=tv_iters, isotropic=isotropic, threads=ctx.threads)

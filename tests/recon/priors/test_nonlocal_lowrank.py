@@ -79,29 +79,6 @@ def test_denoising_step_is_the_basis_times_the_numpy_denoiser(numpy_only):
     np.testing.assert_allclose(x, ref, atol=2e-5 * np.abs(ref).max())
 
 
-def test_matching_follows_the_previous_output():
-    """After a call, the next one matches patches on the first coefficient image of that
-    call's output (match_previous), not on its own input's."""
-    v1 = smooth_low_rank_cube(noise=0.05, seed=1)
-    v2 = smooth_low_rank_cube(noise=0.05, seed=2)
-    opts = dict(rank=3, warmup=0, strength=1.0, patch=4, radius=5, group=8, stride=3)
-    prior = SubspaceNLR(0.1, **opts)
-    x1 = prior.prox(v1, 1.0)
-    guide = np.tensordot(prior.basis[:, 0].astype(np.float32), x1, axes=1)   # call 1's basis
-    x2 = prior.prox(v2, 1.0)
-    e = prior.basis.astype(np.float32)
-    z2 = np.tensordot(e.T, v2, axes=1)
-    zd = denoise_nonlocal(z2, np.full(3, 0.1), patch=4, radius=5, group=8, stride=3,
-                          guide=guide)
-    np.testing.assert_allclose(x2, np.tensordot(e, zd, axes=1), atol=2e-4)
-    # ... and without match_previous the second call is the plain one.
-    plain = SubspaceNLR(0.1, match_previous=False, **opts)
-    plain.prox(v1, 1.0)
-    np.testing.assert_allclose(plain.prox(v2, 1.0), SubspaceNLR(0.1, **opts).prox(v2, 1.0),
-                               atol=1e-5)
-    assert np.abs(x2 - plain.prox(v2, 1.0)).max() > 1e-4
-
-
 def test_it_denoises_better_than_the_projection_alone():
     clean = smooth_low_rank_cube(shape=(10, 40, 44))
     sigma = 0.05
