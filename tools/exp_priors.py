@@ -151,8 +151,8 @@ def design_rows(design_name: str, name: str, folder: Path, priors, counts, args)
         noise = measurement_noise(g, meta, cal.noise)
         op, gn = normalised(calibrated_operator(cal, ids, model), g)
         solver = DEFAULTS["solver"]
-        tau = tv_weight(solver, None, len(ids), None if noise is None else noise * op.scale)
         nz = None if noise is None else noise * op.scale
+        tau = tv_weight(solver, None, len(ids), nz)
         for prior in priors:   # untimed: the first solve of a process compiles its kernels
             p, kw = build(prior, op.ishape, solver, tau, nz, len(ids))
             reconstruct(gn, op, solver=solver, iters=2, tol=None, prior=p, **kw)
