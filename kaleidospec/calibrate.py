@@ -364,8 +364,10 @@ def _radiometry(design, caps, cal, model) -> np.ndarray:
     ids = cal.view_ids
     n = min(RADIOMETRY_VIEWS, len(ids))
     n = max(i + 1 for i in range(n) if set(VIEW_ORDER[:i + 1]) <= set(ids))
+    # The scalar step, whatever the default metric: the cached calibrations (keyed by the
+    # calibration code's version) were fitted with it, and the fit runs to convergence.
     cube, _ = reconstruct_views(caps.colorchecker, caps.meta["colorchecker"], cal, n,
-                                model=model, **DEFAULTS)
+                                model=model, **dict(DEFAULTS, metric="scalar"))
     oy, ox = grid_offset(design, cal, model)
     pb = caps.patch_boxes.astype(np.float64).copy()
     pb[:, 0] -= oy

@@ -39,14 +39,17 @@ from recon.errors import InputError
 
 __all__ = ["DEFAULTS", "TAU_PER_VIEW", "TAU_PER_NOISE", "first_views", "tv_weight",
            "prior_weight", "unit_row_scale", "normalised", "measurement_noise", "design_noise",
-           "solve_views", "calibrated_operator", "frame_measurements", "reconstruct_views",
-           "reconstruct_oracle", "Reconstructor"]
+           "solver_metric", "solve_views", "calibrated_operator", "frame_measurements",
+           "reconstruct_views", "reconstruct_oracle", "Reconstructor"]
 
 #: Reconstruction defaults: FISTA-TV run until the relative change of the cube
 #: :math:`\|f_k-f_{k-1}\|/\|f_{k-1}\|` falls below ``tol``, at most ``iters`` iterations: a fixed
 #: count either stops far from converged (``paper``) or runs on after it, while ``tol = 1e-3``
 #: stops close to the PSNR the cap reaches (docs/reconstruction.md, "The stopping rule").
-DEFAULTS = {"solver": "fista-tv", "iters": 400, "tol": 1e-3, "tau": None}
+#: ``metric``: FISTA's step metric (:func:`recon.solvers.fista_tv`): ``"auto"`` takes a step
+#: per band (:mod:`recon.solvers.band_metric`) where the prior allows it (TV), the same
+#: objective reached in fewer iterations (docs/speed_product.md).
+DEFAULTS = {"solver": "fista-tv", "iters": 400, "tol": 1e-3, "tau": None, "metric": "auto"}
 #: The application's TV weight rule, in its unit-row-norm units (:func:`tv_weight`); the
 #: solvers' own defaults and the weight's valid range are :mod:`recon.priors.tv`'s.
 #: Default TV weight per solver (per view for the solvers whose data term sums over views) where
@@ -161,16 +164,29 @@ def prior_weight(prior, solver, tau, n_views, noise=None):
     return tau
 
 
+def solver_metric(solver: str, metric) -> dict:
+    """The solver keywords of ``metric`` (FISTA's step metric, :data:`DEFAULTS`): ``{"metric":
+    metric}`` for FISTA-TV; nothing for the other solvers, which have no metric to choose (an
+    input error unless ``metric`` is ``"auto"``, ``"scalar"`` or None)."""
+    if solver == "fista-tv":
+        return {} if metric is None else {"metric": metric}
+    if metric not in (None, "auto", "scalar"):
+        raise InputError(f"metric {metric!r} is FISTA-TV's option; solver {solver!r} has none")
+    return {}
+
+
 def solve_views(op, g, n_views: int, *, solver: str = DEFAULTS["solver"],
                 iters: int = DEFAULTS["iters"], tol=DEFAULTS["tol"], tau=None, x0=None, truth=None,
-                wavelengths=None, progress: bool = False, noise=None, prior=None):
+                wavelengths=None, progress: bool = False, noise=None, prior=None,
+                metric=DEFAULTS["metric"]):
     """Reconstruct measurements ``g`` of ``n_views`` views through ``op`` the way every path of
     the application does: operator and data brought to unit mean row norm (:func:`normalised`),
     the prior ``prior`` (a :data:`recon.priors.PRIORS` name; None: ``"tv"``) with the weight
     from :func:`prior_weight` (``noise``: the rms noise of ``g``, in its units, e.g.
     :func:`measurement_noise`), then :func:`recon.app.reconstruct` (at most ``iters``
-    iterations, fewer once the relative change falls below ``tol``; ``None`` runs them all).
-    Adds ``seconds`` and ``noise`` (in the unit-row-norm units)."""
+    iterations, fewer once the relative change falls below ``tol``; ``None`` runs them all;
+    FISTA's step ``metric``, :func:`solver_metric`).  Adds ``seconds`` and ``noise`` (in the
+    unit-row-norm units)."""
     from recon.app import reconstruct
 
     op, g = normalised(op, g)
@@ -179,7 +195,7 @@ def solve_views(op, g, n_views: int, *, solver: str = DEFAULTS["solver"],
     tau = prior_weight(prior, solver, tau, n_views, noise)
     cube, info = reconstruct(g, op, solver=solver, iters=iters, tol=tol, tau=tau, x0=x0,
                              truth=truth, wavelengths=wavelengths, progress=progress,
-                             prior=prior, noise=noise)
+                             prior=prior, noise=noise, **solver_metric(solver, metric))
     info["seconds"] = time.perf_counter() - t0
     info["noise"] = noise
     return cube, info
@@ -220,7 +236,8 @@ def frame_measurements(frame, metadata, cal, view_ids) -> np.ndarray:
 def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = DEFAULTS["solver"],
                       iters: int = DEFAULTS["iters"], tol=DEFAULTS["tol"], tau=None, x0=None,
                       truth=None, progress: bool = False, design=None,
-                      model: str | None = None, prior: str | None = None):
+                      model: str | None = None, prior: str | None = None,
+                      metric=DEFAULTS["metric"]):
     """Reconstruct from the first ``n_views`` views of a raw frame with a calibration.
 
     Parameters
@@ -234,8 +251,9 @@ def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = DEFAULTS["
     n_views : int
         1..9, views taken in the order centre, left, right, top, bottom, corners; all must be
         in the calibration.
-    solver, iters, tau, x0, progress, prior
-        As for :func:`recon.app.reconstruct` (``tau`` and ``prior``: :func:`solve_views`).
+    solver, iters, tau, x0, progress, prior, metric
+        As for :func:`recon.app.reconstruct` (``tau``, ``prior`` and ``metric``:
+        :func:`solve_views`).
     tol : float or None
         Stop once the relative change of the cube falls below it (:func:`solve_views`).
     truth : (v, v, L) or (H, W, L) array, optional
@@ -268,7 +286,8 @@ def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = DEFAULTS["
     cube, info = solve_views(calibrated_operator(cal, ids, model), g, len(ids), solver=solver,
                              iters=iters, tol=tol, tau=tau, x0=x0, truth=tg,
                              wavelengths=cal.wavelengths, progress=progress,
-                             noise=measurement_noise(g, metadata, cal.noise), prior=prior)
+                             noise=measurement_noise(g, metadata, cal.noise), prior=prior,
+                             metric=metric)
     info["view_ids"] = list(ids)
     if tg is not None:
         info["truth_grid"] = tg
@@ -279,7 +298,7 @@ def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = DEFAULTS["
 def reconstruct_oracle(frame, metadata, design, n_views, *, solver: str = DEFAULTS["solver"],
                        iters: int = DEFAULTS["iters"], tol=DEFAULTS["tol"], tau=None,
                        truth=None, progress: bool = False, inversion: bool = True, op=None,
-                       prior: str | None = None):
+                       prior: str | None = None, metric=DEFAULTS["metric"]):
     """Reconstruct a frame with the design's exact operator
     (:func:`kaleidospec.instrument.oracle_operator`, or ``op``), on the ground-truth grid.
     Returns ``(cube (v, v, L), info)``."""
@@ -292,7 +311,8 @@ def reconstruct_oracle(frame, metadata, design, n_views, *, solver: str = DEFAUL
         op = oracle_operator(design, n_views, inversion=inversion)
     return solve_views(op, g, n_views, solver=solver, iters=iters, tol=tol, tau=tau,
                        truth=truth, wavelengths=design.wavelengths, progress=progress,
-                       noise=measurement_noise(g, metadata, design_noise(design)), prior=prior)
+                       noise=measurement_noise(g, metadata, design_noise(design)), prior=prior,
+                       metric=metric)
 
 
 def check_oracle_solver(solver: str) -> str:
@@ -373,6 +393,7 @@ class Reconstructor:
         self._offset = offset
         self.kind = kind
         self._step = None
+        self._lipschitz = None
 
     @classmethod
     def calibrated(cls, cal, n_views: int, **kw) -> "Reconstructor":
@@ -435,8 +456,17 @@ class Reconstructor:
         return {"prior": self._prior}
 
     def solver_options(self) -> dict:
-        """GAP-TV's step (computed on first use) and prox threads."""
+        """GAP-TV's step, or FISTA-TV's Lipschitz constant ‖H‖² (each computed on
+        first use: the operator is the sequence's, so a frame does not repeat the power
+        iteration, 15 forward/adjoint pairs, which is as much as a warm frame's iterations),
+        and prox threads."""
         opts = {}
+        if self.solver == "fista-tv":
+            if self._lipschitz is None:
+                from recon.solvers import operator_norm_sq
+
+                self._lipschitz = operator_norm_sq(self.op, dtype=np.float32)
+            opts["lipschitz"] = self._lipschitz
         if self.solver == "gap-tv":
             if self._step is None:
                 from recon.solvers.base import (preconditioned_norm_sq, row_norms_sq,

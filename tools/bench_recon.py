@@ -40,7 +40,10 @@ without the setup), then the converged solve of
 < 1e-3, at most 400 iterations), the truth on the model's grid as ``run`` scores it: time,
 iterations, PSNR and the process's peak resident memory during the solve (sampled every
 20 ms).  With ``--warm`` every view count above one also runs from the one-view cube (a warm
-start: the same objective, another start).  ``--compare`` times the reference paths (the
+start: the same objective, another start).  ``--metrics scalar,auto`` solves each frame with
+FISTA's scalar step and then with the default step metric (``auto``: a step per band where
+the prior allows it, ``recon.solvers.band_metric``), one after the other in the process: the
+before/after of the band metric.  ``--compare`` times the reference paths (the
 FFT blur, the unfused gradient step of the row scaling, the float64 PSNR history) against the
 current ones, alternated in the process, with the largest relative difference of their
 outputs.  Scenes (``--scenes``): ``natural`` and the CAVE development scene
@@ -50,6 +53,7 @@ Usage: python3 tools/bench_recon.py [--quick] [--out DIR] [--iters 50] [--solver
                                     [--configs a,b] [--repeat 3] [--no-reference]
        python3 tools/bench_recon.py --configs small,paper [--scenes natural,egyptian_statue]
                                     [--views 1,5] [--warm] [--compare] [--no-solve]
+                                    [--metrics scalar,auto]
                                     [--repeat 3]
 """
 
@@ -431,7 +435,7 @@ def rel_diff(a, b) -> float:
 
 
 def bench_calibrated(design_name, scenes, views, repeat, warm, quick, converge=True,
-                     compare=False):
+                     compare=False, metrics=None):
     """The rows of one calibrated design (see the module docstring); returns the report."""
     from kaleidospec.calibrate import calibrate, is_cached
     from kaleidospec.instrument import release_transports, render_scene
@@ -442,6 +446,7 @@ def bench_calibrated(design_name, scenes, views, repeat, warm, quick, converge=T
     from recon.solvers import operator_norm_sq
     from sim.optics.design import get_design
 
+    metrics = [DEFAULTS["metric"]] if not metrics else list(metrics)
     design = get_design(design_name)
     cached = is_cached(design)
     t0 = time.perf_counter()
@@ -505,23 +510,30 @@ def bench_calibrated(design_name, scenes, views, repeat, warm, quick, converge=T
                       f"{setup:5.2f} s", flush=True)
                 rows.append(row)
                 continue
-            with PeakRSS() as mem:
-                cube, info = reconstruct_views(frame, meta, cal, n, truth=truths[n],
-                                               design=design, model=model)
-            row.update(solve_s=info["seconds"], iters=info["iters"],
-                       psnr=info["metrics"]["psnr"], peak_rss_mb=mem.peak_mb,
-                       rss_start_mb=mem.start_mb)
+            # The converged solve with every step metric asked for (--metrics), one after
+            # the other on the same frame; the last one's cube is kept (for --warm).
+            for metric in metrics:
+                with PeakRSS() as mem:
+                    cube, info = reconstruct_views(frame, meta, cal, n, truth=truths[n],
+                                                   design=design, model=model, metric=metric)
+                mrow = dict(row, metric=metric, metric_used=info["solver_info"].get("metric"),
+                            solve_s=info["seconds"], iters=info["iters"],
+                            psnr=info["metrics"]["psnr"], peak_rss_mb=mem.peak_mb,
+                            rss_start_mb=mem.start_mb,
+                            objective=(info["objective"] or [None])[-1])
+                print(f"  {design_name:5s} {scene:16s} {n} view(s): forward {fwd * 1e3:7.1f} ms"
+                      f"  adjoint {adj * 1e3:7.1f} ms  iteration {it_s:6.3f} s  | metric "
+                      f"{metric:6s} converged {info['iters']:3d} it {info['seconds']:7.2f} s  "
+                      f"PSNR {mrow['psnr']:6.2f} dB  peak RSS {mem.peak_mb:6.0f} MB",
+                      flush=True)
+                rows.append(mrow)
             cubes[n] = cube
-            print(f"  {design_name:5s} {scene:16s} {n} view(s): forward {fwd * 1e3:7.1f} ms  "
-                  f"adjoint {adj * 1e3:7.1f} ms  iteration {it_s:6.3f} s  | converged "
-                  f"{info['iters']:3d} it {info['seconds']:7.2f} s  PSNR {row['psnr']:6.2f} dB"
-                  f"  peak RSS {mem.peak_mb:6.0f} MB", flush=True)
-            rows.append(row)
             if warm and n > 1 and 1 in cubes:
                 with PeakRSS() as mem:
                     cube, info = reconstruct_views(frame, meta, cal, n, truth=truths[n],
                                                    design=design, model=model, x0=cubes[1])
-                wrow = dict(row, warm_from=1, solve_s=info["seconds"], iters=info["iters"],
+                wrow = dict(row, warm_from=1, metric=DEFAULTS["metric"],
+                            solve_s=info["seconds"], iters=info["iters"],
                             psnr=info["metrics"]["psnr"], peak_rss_mb=mem.peak_mb)
                 print(f"  {design_name:5s} {scene:16s} {n} view(s) from the 1-view cube: "
                       f"{info['iters']:3d} it {info['seconds']:7.2f} s  PSNR "
@@ -529,7 +541,8 @@ def bench_calibrated(design_name, scenes, views, repeat, warm, quick, converge=T
                 rows.append(wrow)
         for r in rows:
             target = CALIBRATED_TARGETS.get((design_name, r["views"]))
-            if target is not None and "warm_from" not in r and "solve_s" in r:
+            if target is not None and "warm_from" not in r and "solve_s" in r and \
+                    r.get("metric") == DEFAULTS["metric"]:
                 r["target_s"] = target
         out["scenes"].append({"scene": scene, "rows": rows})
         del frame, truths, cubes
@@ -557,6 +570,10 @@ def main(argv=None):
                    help="calibrated configurations: operator and iteration times only")
     p.add_argument("--warm", action="store_true",
                    help="also solve every view count above one from the one-view cube")
+    p.add_argument("--metrics", default="auto",
+                   help="FISTA step metrics of the calibrated converged solves, run one after "
+                        "the other on each frame (e.g. scalar,auto: before / after the band "
+                        "metric); --warm starts from the last one's 1-view cube")
     p.add_argument("--no-reference", action="store_true",
                    help="skip the plain NumPy GAP-TV on (a) and the authors'-settings TwIST "
                         "on (b)")
@@ -580,7 +597,8 @@ def main(argv=None):
             scenes = [v for v in args.scenes.split(",") if v]
             report.setdefault("calibrated", []).append(
                 bench_calibrated(key, scenes, views, args.repeat, args.warm, args.quick,
-                                 converge=not args.no_solve, compare=args.compare))
+                                 converge=not args.no_solve, compare=args.compare,
+                                 metrics=[m for m in args.metrics.split(",") if m]))
             summary += _check_calibrated(report["calibrated"][-1])
             continue
         if key not in ("a", "b"):

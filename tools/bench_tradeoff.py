@@ -15,7 +15,12 @@ right, top, bottom; dispersion inversion on), each view with its own seeded rand
 Noise: Poisson shot noise plus Gaussian read noise (a quarter of the shot-noise variance) at
 a given SNR, or none.
 
-Each (solver, views, noise) is one run of the largest iteration count; a callback records
+``--priors tv,subspace-tv`` runs every solver with each prior (:mod:`recon.priors`, the solver's
+TV weight for all of them), one Pareto front per solver and prior; ``--scene`` replaces the
+ColorChecker by another scene or cube file (e.g. a CAVE folder, resampled to the design's size and
+bands).
+
+Each (solver, prior, views, noise) is one run of the largest iteration count; a callback records
 PSNR/SAM at every iteration count of the sweep (a solver's first k iterations do not depend on
 the total, and the seconds reported by the solvers exclude the callback's time).  Writes
 ``tradeoff.json`` (the table), ``tradeoff_psnr.png`` and ``tradeoff_sam.png`` (metric
@@ -24,6 +29,7 @@ and, per view count and noise level, the recommended default: the fastest settin
 0.5 dB of the best PSNR.
 
 Usage: python3 tools/bench_tradeoff.py [--out out/tradeoff] [--quick] [--full]
+       [--priors tv,subspace-tv] [--scene $KALEIDOSPEC_DATA/cave/egyptian_statue]
 """
 
 from __future__ import annotations
@@ -88,7 +94,7 @@ def problem(full: bool, scene: str, seed: int = 0):
     return truth, masks, np.asarray(offsets, np.float64), desc
 
 
-def run_one(solver, op, g, truth_hwl, checkpoints):
+def run_one(solver, op, g, truth_hwl, checkpoints, prior="tv"):
     """One run; returns [{iters, seconds, psnr, sam}] at the checkpoints."""
     rows, want = [], set(checkpoints)
 
@@ -98,7 +104,7 @@ def run_one(solver, op, g, truth_hwl, checkpoints):
             rows.append({"iters": it, "seconds": float(info["seconds"]),
                          "psnr": float(psnr(est, truth_hwl)), "sam": float(sam(est, truth_hwl))})
 
-    res = solve(solver, op, g, iters=max(checkpoints), tau=TAU[solver], callback=cb)
+    res = solve(solver, op, g, iters=max(checkpoints), tau=TAU[solver], callback=cb, prior=prior)
     return rows, res
 
 
@@ -120,7 +126,7 @@ def recommend(rows):
     return min(ok, key=lambda r: r["seconds"]), best
 
 
-def plot(table, views, noises, key, path):
+def plot(table, views, noises, key, path, priors=("tv",)):
     import matplotlib
     import matplotlib.ticker
 
@@ -130,20 +136,23 @@ def plot(table, views, noises, key, path):
     fig, axes = plt.subplots(len(noises), len(views), figsize=(3.6 * len(views), 2.9 * len(noises)),
                              squeeze=False, sharex=False)
     colours = {"gap-tv": "tab:blue", "twist": "tab:red", "fista-tv": "tab:green"}
+    styles = ["-", "--", ":", "-."]
     for i, nz in enumerate(noises):
         for j, k in enumerate(views):
             ax = axes[i][j]
-            for s in SOLVERS:
+            for s, (pi, prior) in ((s, p) for s in SOLVERS for p in enumerate(priors)):
                 rows = [r for r in table if r["solver"] == s and r["views"] == k
-                        and r["snr_db"] == nz]
+                        and r["snr_db"] == nz and r.get("prior", "tv") == prior]
                 if not rows:
                     continue
+                label = s if len(priors) == 1 else f"{s} / {prior}"
                 pts = [(r["seconds"], r[key] if key == "psnr" else -r[key]) for r in rows]
                 xs = [r["seconds"] for r in rows]
                 ys = [r[key] for r in rows]
                 ax.plot(xs, ys, "o", ms=3, color=colours[s], alpha=0.5)
                 fr = pareto(pts)
-                ax.plot([xs[f] for f in fr], [ys[f] for f in fr], "-", color=colours[s], label=s)
+                ax.plot([xs[f] for f in fr], [ys[f] for f in fr], styles[pi % len(styles)],
+                        color=colours[s], label=label)
             ax.set_xscale("log")
             ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
             ax.set_title(f"{k} view(s), {'no noise' if nz is None else f'{nz:g} dB'}",
@@ -164,13 +173,21 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="out/tradeoff", help="output folder (default out/tradeoff)")
     ap.add_argument("--quick", action="store_true", help="fewer iterations, views and noise levels")
     ap.add_argument("--full", action="store_true", help="256x256x28 instead of the small design")
+    ap.add_argument("--priors", default="tv", help="comma-separated recon.priors names")
+    ap.add_argument("--scene", default=None,
+                    help="a scene name or cube file instead of the ColorChecker")
     args = ap.parse_args(argv)
+    from recon.priors import check_prior_name
+
+    priors = [check_prior_name(p.strip()) for p in args.priors.split(",") if p.strip()]
 
     if args.quick:
         views, noises, checkpoints = (1, 3), (None, 30.0), (5, 10, 20, 50)
     else:
         views, noises, checkpoints = (1, 2, 3, 5), (None, 30.0, 20.0), (5, 10, 20, 30, 50, 100, 200)
     scenes = ("colorchecker", "natural") if args.full else ("colorchecker",)
+    if args.scene:
+        scenes = (args.scene,)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
 
@@ -185,18 +202,18 @@ def main(argv=None) -> int:
             clean = op.forward(truth)
             for nz in noises:
                 g = add_noise(clean, np.inf if nz is None else nz, seed=1)
-                for s in SOLVERS:
-                    rows, res = run_one(s, op, g, truth_hwl, checkpoints)
+                for s, prior in ((s, p) for s in SOLVERS for p in priors):
+                    rows, res = run_one(s, op, g, truth_hwl, checkpoints, prior)
                     extra = {}
                     if s == "twist":
                         extra = {"svd_doublings": res.info.get("svd_doublings"),
                                  "rejected": res.info.get("rejected")}
                     for r in rows:
-                        table.append({"scene": scene, "solver": s, "views": k, "snr_db": nz,
-                                      "tau": TAU[s], **r, **extra})
+                        table.append({"scene": scene, "solver": s, "prior": prior, "views": k,
+                                      "snr_db": nz, "tau": TAU[s], **r, **extra})
                     last = rows[-1]
-                    print(f"{scene:12s} {k} view(s) {'clean' if nz is None else f'{nz:g} dB':>6s} "
-                          f"{s:8s} " + "  ".join(f"{r['iters']}:{r['psnr']:.2f}dB/{r['seconds']:.2f}s"
+                    print(f"{Path(scene).name:12s} {k} view(s) "
+                          f"{'clean' if nz is None else f'{nz:g} dB':>6s} {s:8s} {prior:12s} " + "  ".join(f"{r['iters']}:{r['psnr']:.2f}dB/{r['seconds']:.2f}s"
                                                   for r in rows), flush=True)
                     del last
 
@@ -210,13 +227,14 @@ def main(argv=None) -> int:
                         and r["snr_db"] == nz]
                 r, best = recommend(rows)
                 recs.append({"scene": scene, "views": k, "snr_db": nz, "solver": r["solver"],
+                             "prior": r["prior"],
                              "iters": r["iters"], "seconds": r["seconds"], "psnr": r["psnr"],
                              "sam": r["sam"], "best_psnr": best})
-                print(f"  {scene:12s} {'clean' if nz is None else f'{nz:g} dB':>6s} {k} view(s): "
-                      f"{r['solver']} {r['iters']} it, {r['seconds']:.2f} s, {r['psnr']:.2f} dB "
+                print(f"  {Path(scene).name:12s} {'clean' if nz is None else f'{nz:g} dB':>6s} "
+                      f"{k} view(s): {r['solver']} / {r['prior']} {r['iters']} it, {r['seconds']:.2f} s, {r['psnr']:.2f} dB "
                       f"(best {best:.2f} dB), SAM {r['sam']:.2f} deg")
 
-    doc = {"problems": problems, "tau": TAU, "views": list(views),
+    doc = {"problems": problems, "tau": TAU, "priors": priors, "views": list(views),
            "snr_db": [n for n in noises], "checkpoints": list(checkpoints),
            "within_db": WITHIN_DB, "table": table, "recommended": recs,
            "wall_seconds": time.perf_counter() - t_start}
@@ -225,8 +243,8 @@ def main(argv=None) -> int:
     for scene in scenes:
         sub = [r for r in table if r["scene"] == scene]
         suffix = "" if len(scenes) == 1 else f"_{scene}"
-        plot(sub, views, noises, "psnr", out / f"tradeoff_psnr{suffix}.png")
-        plot(sub, views, noises, "sam", out / f"tradeoff_sam{suffix}.png")
+        plot(sub, views, noises, "psnr", out / f"tradeoff_psnr{suffix}.png", priors)
+        plot(sub, views, noises, "sam", out / f"tradeoff_sam{suffix}.png", priors)
     print(f"wrote {out / 'tradeoff.json'} and plots in {out}")
     return 0
 

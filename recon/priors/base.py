@@ -25,6 +25,11 @@ methods only, so that a prior overrides one only to make it faster or to keep it
 - :meth:`PriorBase.state` / :meth:`PriorBase.load_state` -- warm-start state carried from one
   problem to the next (a video's frames).
 
+A prior may also declare ``band_scalable = True`` (default False): it separates over the
+bands and is positively homogeneous of degree one, :math:`\varphi(x) = \sum_l \varphi_l(x_l)`
+with :math:`\varphi_l(\lambda x_l) = \lambda\varphi_l(x_l)`, so that solvers may take a step
+per band (:mod:`recon.solvers.band_metric`).
+
 Solvers look these up with :func:`gradient_prox`, :func:`combine_value`, :func:`refine` and
 :func:`describe`, so a bare :class:`Prior` that does not derive from :class:`PriorBase` works
 too.
@@ -78,6 +83,9 @@ class PriorBase:
 
     Subclasses implement :meth:`prox`, :meth:`value` and :meth:`reset`.
     """
+
+    #: Whether the prior separates over the bands and is 1-homogeneous (see the module notes).
+    band_scalable = False
 
     def prox(self, v: np.ndarray, step: float, out: np.ndarray | None = None) -> np.ndarray:
         raise NotImplementedError

@@ -81,6 +81,9 @@ class TVPrior(PriorBase):
     """
 
     name = "tv"
+    #: TV is a sum over bands and positively 1-homogeneous, so a prox with a step per band is
+    #: one call at one step on a band-scaled input (:mod:`recon.solvers.band_metric`).
+    band_scalable = True
 
     def __init__(self, weight: float, shape=None, dtype=None, *, iters: int = 2,
                  warm: bool = True, isotropic: bool = True, threads: int | None = None):

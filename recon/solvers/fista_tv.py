@@ -22,6 +22,17 @@ assumption on :math:`HH^\top`), with one forward and one adjoint per iteration. 
 warm-started from the previous dual.  With a plug-and-play denoiser in place of the prox
 (a prior whose ``value`` is None) it is PnP-FISTA, and the restart tests the step's direction
 only.
+
+With ``metric="bands"`` the step is taken in a diagonal metric :math:`D` constant over each
+band (:mod:`recon.solvers.band_metric`), :math:`H^\top H \preceq D`:
+
+.. math::
+
+    f_k = \mathrm{prox}^D_{\varphi}\bigl(z_k + D^{-1}H^\top(g-Hz_k)\bigr),
+
+the same objective, the restart test taken in the metric; the bands the operator sees weakly
+are no longer held to the strong bands' step.  It needs a prior that separates over the bands
+and is 1-homogeneous (TV); ``metric="auto"`` falls back to the scalar step for others.
 """
 
 from __future__ import annotations
@@ -45,7 +56,8 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
              callback=None, tv_iters: int | None = None, warm_dual: bool | None = None,
              lipschitz: float | None = None, isotropic: bool | None = None,
              objective: bool = False, restart: bool = True,
-             threads: int | None = None) -> SolverResult:
+             threads: int | None = None, metric: str = "scalar",
+             metric_exponent: float | None = None, start: str = "adjoint") -> SolverResult:
     r"""Reconstruct with FISTA and a prior (by default TV).
 
     Parameters
@@ -61,7 +73,7 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
         Weight :math:`\tau` of the TV term (default
         :data:`recon.priors.tv.DEFAULT_WEIGHT`\ ``["fista"]``).
     x0 : ndarray, optional
-        Start; :math:`H^\top g / L` if omitted.
+        Start; if omitted, ``start`` says which.
     tol : float, optional
         Stop when the relative change of :math:`f` falls below it.
     callback : Callback, optional
@@ -81,6 +93,21 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
         (warm-started) prox makes FISTA oscillate.
     threads : int, optional
         Threads of the TV prior and of the momentum's vector kernels.
+    metric : {"scalar", "bands", "auto"}
+        The step's metric: ``"scalar"`` the step :math:`1/L`; ``"bands"`` a diagonal metric
+        constant over each band (:mod:`recon.solvers.band_metric`: the same objective, the
+        weak bands no longer held to the strong ones' step), for priors that separate over
+        the bands and are 1-homogeneous (TV; an input error for others); ``"auto"`` the
+        band metric where the prior allows it, else the scalar one.  With ``"bands"``,
+        ``lipschitz`` is not taken.
+    metric_exponent : float, optional
+        The band metric's exponent :math:`p` in [0, 1]
+        (:data:`recon.solvers.band_metric.DEFAULT_EXPONENT` if omitted).
+    start : {"adjoint", "normalised"}
+        The start when ``x0`` is omitted: the gradient step from zero (:math:`H^\top g/L`,
+        or :math:`D^{-1}H^\top g` in the band metric), or the normalised back-projection
+        :math:`H^\top g / H^\top H\mathbf 1` (:mod:`recon.solvers.start`: without the
+        mask's pattern; one forward and one adjoint more).
 
     Returns
     -------
@@ -89,14 +116,36 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
     g, x0, dtype = check_problem(op, g, x0, iters, tau, tol)
     prior = resolve_prior(prior, "fista", op.ishape, dtype, tau=tau, tv_iters=tv_iters,
                           warm_dual=warm_dual, isotropic=isotropic, threads=threads)
+    from recon.solvers.start import STARTS, normalised_backprojection
+
+    if start not in STARTS:
+        raise InputError(f"start must be one of {', '.join(STARTS)}, got {start!r}")
+    bands = _use_band_metric(metric, prior, lipschitz)
     loop = IterationLoop(tol, callback)
-    lip = operator_norm_sq(op, dtype=dtype) if lipschitz is None else float(lipschitz)
+    if bands:
+        from recon.solvers.band_metric import DEFAULT_EXPONENT, BandMetric, band_metric
+
+        exponent = DEFAULT_EXPONENT if metric_exponent is None else metric_exponent
+        bm = BandMetric(band_metric(op, dtype, exponent), dtype)
+        lip = bm.dmax
+    else:
+        if metric_exponent is not None:
+            raise InputError("metric_exponent sets the band metric: give metric='bands'")
+        bm = None
+        lip = operator_norm_sq(op, dtype=dtype) if lipschitz is None else float(lipschitz)
     if not lip > 0:
         raise InputError("the operator is zero (or lipschitz <= 0): nothing to reconstruct")
 
-    if x0 is None:
+    if x0 is None and start == "normalised":
+        x0 = normalised_backprojection(op, g, dtype)
+    elif x0 is None:
+        # H^T g / L (scalar metric) or D^{-1} H^T g (band metric): the first gradient step
+        # from zero.
         x0 = np.ascontiguousarray(op.adjoint(g), dtype=dtype)
-        x0 /= lip
+        if bm is None:
+            x0 /= lip
+        else:
+            x0 *= (1.0 / bm.d).astype(dtype)[:, None, None]
     f = x0
     f_prev = f.copy()
     z = f.copy()
@@ -113,9 +162,13 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
         if r_z is None:
             r_z = op.forward(z)
             np.subtract(g, r_z, out=r_z)
-        op.adjoint_add(r_z, z, 1.0 / lip, out=step)
         f_prev, f = f, f_prev
-        prior.prox(step, 1.0 / lip, out=f)
+        if bm is None:
+            op.adjoint_add(r_z, z, 1.0 / lip, out=step)
+            prior.prox(step, 1.0 / lip, out=f)
+        else:
+            bm.scaled_step(op, r_z, z, out=step)
+            bm.prox(prior, step, out=f)
         # Adaptive restart (O'Donoghue & Candes 2015): momentum is dropped when the objective
         # rises or the step f - f_prev points against the generalised gradient z - f.  With
         # an inexact (warm-started) prox plain FISTA oscillates instead of converging.
@@ -125,7 +178,8 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
             r_f_prev, r_f = r_f, r_new
             value = prior_value(prior, f)
             obj = None if value is None else misfit + value
-        if restart and (_restart_dot(z, f, f_prev, step, threads) > 0
+        if restart and ((bm.restart_dot(z, f, f_prev, threads) if bm is not None else
+                         _restart_dot(z, f, f_prev, step, threads)) > 0
                         or (obj is not None and obj > prev_obj)):
             t = 1.0
             restarts += 1
@@ -149,7 +203,32 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
 
     return SolverResult(x=f, iterations=loop.iterations, objective=history,
                         seconds=loop.seconds(), converged=loop.converged,
-                        info={"lipschitz": lip, "restarts": restarts, **prior_info(prior)})
+                        info={"lipschitz": lip, "restarts": restarts,
+                              "metric": "bands" if bands else "scalar",
+                              **({} if bm is None else {"band_metric": bm.d.tolist()}),
+                              **prior_info(prior)})
+
+
+def _use_band_metric(metric: str, prior, lipschitz) -> bool:
+    """Whether the loop runs in the band metric (see :func:`fista_tv`'s ``metric``)."""
+    from recon.solvers.band_metric import METRICS, band_scalable
+
+    if metric not in METRICS:
+        raise InputError(f"metric must be one of {', '.join(METRICS)}, got {metric!r}")
+    if metric == "scalar":
+        return False
+    if not band_scalable(prior):
+        if metric == "bands":
+            raise InputError(f"the band metric needs a prior that separates over the bands "
+                             f"and is 1-homogeneous (TV); {prior_info(prior)['prior']!r} is "
+                             f"not: use metric='scalar' or 'auto'")
+        return False
+    if lipschitz is not None:
+        if metric == "bands":
+            raise InputError("lipschitz sets the scalar step; the band metric estimates its "
+                             "own: give one or the other")
+        return False
+    return True
 
 
 def _restart_dot(z: np.ndarray, f: np.ndarray, f_prev: np.ndarray, work: np.ndarray,
