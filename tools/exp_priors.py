@@ -132,7 +132,7 @@ def design_rows(design_name: str, name: str, folder: Path, priors, counts, args)
     from kaleidospec.models import model_of, truth_on_grid
     from kaleidospec.reconstruct import (DEFAULTS, calibrated_operator, first_views,
                                          frame_measurements, measurement_noise, normalised,
-                                         tv_weight)
+                                         solver_metric, tv_weight)
     from recon.app import reconstruct
     from sim.optics.design import get_design
 
@@ -151,15 +151,16 @@ def design_rows(design_name: str, name: str, folder: Path, priors, counts, args)
         noise = measurement_noise(g, meta, cal.noise)
         op, gn = normalised(calibrated_operator(cal, ids, model), g)
         solver = DEFAULTS["solver"]
+        metric = solver_metric(solver, DEFAULTS["metric"])    # FISTA's step metric, as run's
         nz = None if noise is None else noise * op.scale
         tau = tv_weight(solver, None, len(ids), nz)
         for prior in priors:   # untimed: the first solve of a process compiles its kernels
             p, kw = build(prior, op.ishape, solver, tau, nz, len(ids))
-            reconstruct(gn, op, solver=solver, iters=2, tol=None, prior=p, **kw)
+            reconstruct(gn, op, solver=solver, iters=2, tol=None, prior=p, **kw, **metric)
         for prior in priors:
             p, kw = build(prior, op.ishape, solver, tau, nz, len(ids))
             cube, info = reconstruct(gn, op, solver=solver, iters=DEFAULTS["iters"],
-                                     tol=DEFAULTS["tol"], prior=p, **kw)
+                                     tol=DEFAULTS["tol"], prior=p, **kw, **metric)
             rows.append({"design": design_name, "views": n, "scene": name, "prior": prior,
                          "seconds": info["seconds"], "iters": info["iters"],
                          **scores(np.moveaxis(cube, 2, 0), truth_bm)})
