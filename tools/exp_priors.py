@@ -26,6 +26,11 @@ Usage::
     python3 tools/exp_priors.py --designs cassi --priors tv,subspace-tv
     python3 tools/exp_priors.py --designs small --views 1,5 --priors tv,subspace-tv
     python3 tools/exp_priors.py --designs paper --views 5 --scenes cloth,paints,superballs
+    python3 tools/exp_priors.py --designs small --priors tv,subspace-tv,subspace-tv:rank=4
+
+A prior is a name of :data:`recon.priors.PRIORS`, optionally with options of its factory after
+colons (``subspace-tv:rank=4``, ``subspace-nlr:strength=0.4:warmup=40``; integers and floats
+as written); the row's label is the text as given.
 
 Prints one row per problem and prior, then the mean per design, views and prior with its gain
 over TV and its time relative to TV's; writes ``exp_priors.json`` in ``--out`` (atomically).
@@ -45,6 +50,39 @@ import numpy as np
 from kaleidospec.experiments import CAVE_DEV_SCENES, cave_folder
 
 CASSI_SIZE, CASSI_BANDS, CASSI_STEP = 256, slice(1, 29), 2
+
+
+def parse_prior(spec: str) -> tuple[str, dict]:
+    """``name:key=value:...`` as (name, options); the values as int, else float, else text."""
+    from recon.priors import check_prior_name
+
+    name, *parts = spec.split(":")
+    options = {}
+    for part in parts:
+        key, sep, text = part.partition("=")
+        if not sep or not key:
+            raise SystemExit(f"bad prior option {part!r} in {spec!r} (want key=value)")
+        for kind in (int, float):
+            try:
+                options[key] = kind(text)
+                break
+            except ValueError:
+                continue
+        else:
+            options[key] = text
+    return check_prior_name(name), options
+
+
+def build(spec: str, shape, solver: str, tau: float, noise=None, n_views=None):
+    """The prior ``spec`` for a solve: its name where it has no options (the solvers build
+    it, TV's arithmetic included), else the object from :func:`recon.priors.make_prior`."""
+    from recon.priors import make_prior
+
+    name, options = parse_prior(spec)
+    if not options:
+        return name, {"tau": tau}
+    return make_prior(name, shape=shape, dtype=np.float32, weight=tau, solver=solver,
+                      noise=noise, n_views=n_views, **options), {}
 
 
 def scores(est_bm: np.ndarray, truth_bm: np.ndarray) -> dict:
@@ -74,10 +112,12 @@ def cassi_rows(name: str, folder: Path, priors, args) -> list[dict]:
     g = g + rng.normal(0.0, sigma, g.shape).astype(np.float32)
     rows = []
     for prior in priors:   # untimed: the first solve of a process compiles its kernels
-        gap_tv(op, g, iters=2, tau=args.gap_tau, prior=prior)
+        p, kw = build(prior, truth.shape, "gap", args.gap_tau)
+        gap_tv(op, g, iters=2, prior=p, **kw)
     for prior in priors:
+        p, kw = build(prior, truth.shape, "gap", args.gap_tau)
         t0 = time.perf_counter()
-        res = gap_tv(op, g, iters=args.gap_iters, tau=args.gap_tau, prior=prior)
+        res = gap_tv(op, g, iters=args.gap_iters, prior=p, **kw)
         seconds = time.perf_counter() - t0
         rows.append({"design": "cassi", "views": 1, "scene": name, "prior": prior,
                      "seconds": seconds, "iters": res.iterations, **scores(res.x, truth)})
@@ -92,7 +132,7 @@ def design_rows(design_name: str, name: str, folder: Path, priors, counts, args)
     from kaleidospec.models import model_of, truth_on_grid
     from kaleidospec.reconstruct import (DEFAULTS, calibrated_operator, first_views,
                                          frame_measurements, measurement_noise, normalised,
-                                         tv_weight)
+                                         solver_metric, tv_weight)
     from recon.app import reconstruct
     from sim.optics.design import get_design
 
@@ -111,12 +151,16 @@ def design_rows(design_name: str, name: str, folder: Path, priors, counts, args)
         noise = measurement_noise(g, meta, cal.noise)
         op, gn = normalised(calibrated_operator(cal, ids, model), g)
         solver = DEFAULTS["solver"]
-        tau = tv_weight(solver, None, len(ids), None if noise is None else noise * op.scale)
+        metric = solver_metric(solver, DEFAULTS["metric"])    # FISTA's step metric, as run's
+        nz = None if noise is None else noise * op.scale
+        tau = tv_weight(solver, None, len(ids), nz)
         for prior in priors:   # untimed: the first solve of a process compiles its kernels
-            reconstruct(gn, op, solver=solver, iters=2, tol=None, tau=tau, prior=prior)
+            p, kw = build(prior, op.ishape, solver, tau, nz, len(ids))
+            reconstruct(gn, op, solver=solver, iters=2, tol=None, prior=p, **kw, **metric)
         for prior in priors:
+            p, kw = build(prior, op.ishape, solver, tau, nz, len(ids))
             cube, info = reconstruct(gn, op, solver=solver, iters=DEFAULTS["iters"],
-                                     tol=DEFAULTS["tol"], tau=tau, prior=prior)
+                                     tol=DEFAULTS["tol"], prior=p, **kw, **metric)
             rows.append({"design": design_name, "views": n, "scene": name, "prior": prior,
                          "seconds": info["seconds"], "iters": info["iters"],
                          **scores(np.moveaxis(cube, 2, 0), truth_bm)})
@@ -125,7 +169,7 @@ def design_rows(design_name: str, name: str, folder: Path, priors, counts, args)
 
 
 def fmt_row(r: dict) -> str:
-    return (f"{r['design']:6s} {r['views']:>2d}v {r['scene']:22s} {r['prior']:14s} "
+    return (f"{r['design']:6s} {r['views']:>2d}v {r['scene']:22s} {r['prior']:22s} "
             f"PSNR {r['psnr']:6.2f}  SSIM {r['ssim']:.3f}  SAM {r['sam']:5.2f}  "
             f"{r['seconds']:6.1f} s  ({r['iters']} it)")
 
@@ -149,7 +193,7 @@ def summary(rows: list[dict], priors) -> list[str]:
             if tv is not None and prior != "tv":
                 extra = (f"  {m['psnr'] - tv['psnr']:+.2f} dB vs tv, "
                          f"{m['seconds'] / tv['seconds']:.2f}x tv's time")
-            lines.append(f"mean {design:6s} {views:>2d}v {prior:14s} ({m['n']} scenes) "
+            lines.append(f"mean {design:6s} {views:>2d}v {prior:22s} ({m['n']} scenes) "
                          f"PSNR {m['psnr']:6.2f}  SSIM {m['ssim']:.3f}  SAM {m['sam']:5.2f}  "
                          f"{m['seconds']:6.1f} s{extra}")
     return lines
@@ -178,9 +222,9 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="out/exp_priors")
     args = ap.parse_args(argv)
 
-    from recon.priors import check_prior_name
-
-    priors = [check_prior_name(p) for p in args.priors.split(",") if p]
+    priors = [p for p in args.priors.split(",") if p]
+    for p in priors:
+        parse_prior(p)
     scenes = [s for s in args.scenes.split(",") if s]
     held_out = [s for s in scenes if s not in CAVE_DEV_SCENES]
     if held_out:

@@ -11,7 +11,10 @@ import typer
 
 #: The priors of :data:`recon.priors.PRIORS`, with the line ``--help`` shows for each.
 PRIOR_CHOICES = {"tv": "total variation, spatial, per band",
-                 "subspace-tv": "k spectral basis vectors from the iterate, TV on their images"}
+                 "subspace-tv": "k spectral basis vectors from the iterate, TV on their images",
+                 "subspace-nlr": "as subspace-tv, then a non-local low-rank denoiser (patch "
+                                 "groups, singular-value shrinkage) on their images; tuned "
+                                 "for GAP (reconstruct, with --iters 100)"}
 
 #: The library's default prior (:data:`recon.priors.DEFAULT_PRIOR`): ``reconstruct`` (single-view
 #: CASSI files) and ``video`` keep it.

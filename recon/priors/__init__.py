@@ -167,3 +167,10 @@ from recon.priors.subspace import make_subspace_tv  # noqa: E402
 
 register_prior("subspace-tv", make_subspace_tv,
                "k spectral basis vectors re-estimated from the iterate, TV on their images")
+
+from recon.priors.nonlocal_lowrank import make_subspace_nlr  # noqa: E402
+
+register_prior("subspace-nlr", make_subspace_nlr,
+               "k spectral basis vectors from the iterate, subspace-TV's prox for a warm-up, "
+               "then a non-local low-rank denoiser (patch groups, optimal singular-value "
+               "shrinkage) on their images; tuned for GAP")
