@@ -39,9 +39,12 @@ __all__ = ["SubspaceTV", "band_gram", "symmetric_eigh", "leading_basis", "projec
 
 def default_rank(n_bands: int) -> int:
     r"""The subspace dimension used when none is given: :math:`k = \lceil L/4 \rceil`, at
-    least 3 and at most :math:`L` (8 for CAVE's 31 bands, 7 for 28)."""
+    least 4 and at most :math:`L` (8 for CAVE's 31 bands, 7 for 28, 4 for 11).
+
+    The floor of 4 rather than 3: three basis vectors are exactly an RGB-lifted scene's rank,
+    and measured spectra need more (docs/priors.md, "The subspace dimension k")."""
     n_bands = int(n_bands)
-    return max(1, min(n_bands, max(3, -(-n_bands // 4))))
+    return max(1, min(n_bands, max(4, -(-n_bands // 4))))
 
 
 def band_gram(v: np.ndarray) -> np.ndarray:

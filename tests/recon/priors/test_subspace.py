@@ -137,7 +137,9 @@ def test_value_is_weighted_tv_of_the_coefficients():
 def test_default_rank_follows_the_bands():
     assert default_rank(31) == 8
     assert default_rank(28) == 7
-    assert default_rank(8) == 3
+    assert default_rank(11) == 4
+    assert default_rank(8) == 4
+    assert default_rank(3) == 3
     assert default_rank(2) == 2
 
 
