@@ -16,7 +16,8 @@ with each run's solve time and wall time (the process, Python's start included).
 
 Usage::
 
-    python3 tools/exp_tsa_real.py --priors tv,subspace-tv --figure docs/tsa_real_priors.png
+    python3 tools/exp_tsa_real.py --priors tv,subspace-tv,subspace-nlr --solver-args "--iters 100" \
+        --figure docs/tsa_real_priors.jpg
 
 Writes the cubes and ``exp_tsa_real.json`` in ``--out``, the figure atomically.
 """
@@ -103,7 +104,7 @@ def main(argv=None) -> int:
     ap.add_argument("--scenes", default="scene1,scene2,scene3,scene4,scene5")
     ap.add_argument("--band", type=int, default=13, help="band index shown in grey (0-based)")
     ap.add_argument("--out", default="out/tsa_real", help="cubes and JSON")
-    ap.add_argument("--figure", default=None, help="the side-by-side figure (PNG)")
+    ap.add_argument("--figure", default=None, help="the side-by-side figure (PNG or JPEG, by its suffix)")
     ap.add_argument("--solver-args", default="", help="extra arguments for every run, quoted")
     args = ap.parse_args(argv)
 
