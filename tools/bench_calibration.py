@@ -21,7 +21,6 @@ Usage: python3 tools/bench_calibration.py [--design paper] [--repeat 3] [--repea
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import time
 from pathlib import Path
@@ -126,10 +125,9 @@ def main(argv=None):
     report["loadavg_end"] = os.getloadavg()
     print(f"load {report['loadavg_start'][0]:.2f} -> {report['loadavg_end'][0]:.2f}")
     if args.json:
-        from recon.io.atomic import atomic_path
+        from kaleidospec.experiments import write_json
 
-        with atomic_path(args.json) as tmp:
-            tmp.write_text(json.dumps(report, indent=1))
+        write_json(Path(args.json), report)
 
 
 if __name__ == "__main__":

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import os
 import time
 from collections import defaultdict
@@ -283,10 +282,9 @@ def main(argv=None):
     report["loadavg_end"] = os.getloadavg()
     print(f"\nload {report['loadavg_start'][0]:.2f} -> {report['loadavg_end'][0]:.2f}")
     if args.json:
-        from recon.io.atomic import atomic_path
+        from kaleidospec.experiments import write_json
 
-        with atomic_path(args.json) as tmp:
-            tmp.write_text(json.dumps(report, indent=1))
+        write_json(Path(args.json), report)
 
 
 if __name__ == "__main__":

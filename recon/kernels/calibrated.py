@@ -177,6 +177,26 @@ def _combine(o, s, mode, b, scale):
             o[j] = b[j] + scale * s[j]
 
 
+@jit(refcount=False)
+def _band_z_row(cr, yr, al, b0, b1, sub, lo, cy, zr):
+    r"""One row of one band's :math:`z_l`: ``cy[lo:]`` :math:`= C_{k,l}\,y` on the row
+    (``cr`` the mask image's row, ``yr`` the measurement's), then ``zr`` the two taps
+    ``b0 cy[al + j] + b1 cy[al + j + 1]`` (``b1`` only where ``sub``)."""
+    wm = yr.shape[0]
+    cyr = cy[lo:lo + wm]
+    for x_ in range(wm):
+        cyr[x_] = cr[x_] * yr[x_]
+    wv = zr.shape[0]
+    p0 = cy[al:al + wv]
+    if sub:
+        p1 = cy[al + 1:al + 1 + wv]
+        for j in range(wv):
+            zr[j] = b0 * p0[j] + b1 * p1[j]
+    else:
+        for j in range(wv):
+            zr[j] = b0 * p0[j]
+
+
 @jit(parallel=True)
 def shift_adjoint(y, cm, a, c0, c1, sub, mode, base, scale, out):
     r""":math:`z_l[i, :]` of one view for every band and row, combined into ``out`` by ``mode``.
@@ -204,22 +224,8 @@ def shift_adjoint(y, cm, a, c0, c1, sub, mode, base, scale, out):
         z = np.empty(wv, dtype=out.dtype)
         for i in range(task * _ROWS, min(hv, (task + 1) * _ROWS)):
             yr = y[i]
-            cyr = cy[lo:lo + wm]
             for l in range(n_bands):
-                cr = cm[l, i]
-                for x_ in range(wm):
-                    cyr[x_] = cr[x_] * yr[x_]
-                al = a[l] + lo
-                b0 = c0[l]
-                p0 = cy[al:al + wv]
-                if sub[l]:
-                    b1 = c1[l]
-                    p1 = cy[al + 1:al + 1 + wv]
-                    for j in range(wv):
-                        z[j] = b0 * p0[j] + b1 * p1[j]
-                else:
-                    for j in range(wv):
-                        z[j] = b0 * p0[j]
+                _band_z_row(cm[l, i], yr, a[l] + lo, c0[l], c1[l], sub[l], lo, cy, z)
                 _combine(out[l, i], z, mode, base[l, i], scale)
 
 
@@ -270,27 +276,11 @@ def _view_z_rows(y, cm, a, c0, c1, sub, r0, r1, wv, lo, cy, z):
     ``i`` at ``(i - r0) wv``), as :func:`shift_adjoint` makes them; ``cy`` a zero-padded row
     scratch (``lo`` zeros before the crop)."""
     n_bands = a.shape[0]
-    wm = y.shape[1]
-    cyr = cy[lo:lo + wm]
     for i in range(r0, r1):
         yr = y[i]
         o = (i - r0) * wv
         for l in range(n_bands):
-            cr = cm[l, i]
-            for x_ in range(wm):
-                cyr[x_] = cr[x_] * yr[x_]
-            al = a[l] + lo
-            b0 = c0[l]
-            p0 = cy[al:al + wv]
-            zr = z[l, o:o + wv]
-            if sub[l]:
-                b1 = c1[l]
-                p1 = cy[al + 1:al + 1 + wv]
-                for j in range(wv):
-                    zr[j] = b0 * p0[j] + b1 * p1[j]
-            else:
-                for j in range(wv):
-                    zr[j] = b0 * p0[j]
+            _band_z_row(cm[l, i], yr, a[l] + lo, c0[l], c1[l], sub[l], lo, cy, z[l, o:o + wv])
 
 
 @jit(refcount=False)
