@@ -2,20 +2,15 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
 import pytest
 
-TOOL = Path(__file__).resolve().parents[2] / "tools" / "bench_tradeoff.py"
+from tool_scripts import load_tool
 
 
 def _tool():
-    spec = importlib.util.spec_from_file_location("bench_tradeoff", TOOL)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_tool("bench_tradeoff")
 
 
 def test_every_solver_runs_with_every_prior_and_the_prior_changes_the_result(tmp_path):

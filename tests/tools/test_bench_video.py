@@ -2,19 +2,13 @@
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import pytest
 
-TOOL = Path(__file__).resolve().parents[2] / "tools" / "bench_video.py"
+from tool_scripts import load_tool
 
 
 def _tool():
-    spec = importlib.util.spec_from_file_location("bench_video", TOOL)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_tool("bench_video")
 
 
 def test_modes_are_frame_by_frame_the_long_cold_run_the_chain_and_each_temporal_weight():

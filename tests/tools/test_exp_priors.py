@@ -3,20 +3,14 @@ the caller's weight; a bare name goes to the solvers as before."""
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-TOOL = Path(__file__).resolve().parents[2] / "tools" / "exp_priors.py"
+from tool_scripts import load_tool
 
 
 def _tool():
-    spec = importlib.util.spec_from_file_location("exp_priors", TOOL)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_tool("exp_priors")
 
 
 def test_parse_prior_reads_typed_options():

@@ -2,21 +2,17 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-TOOL = Path(__file__).resolve().parents[2] / "tools" / "exp_tsa_real.py"
+from tool_scripts import load_tool
 
 
 def _tool():
-    spec = importlib.util.spec_from_file_location("exp_tsa_real", TOOL)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_tool("exp_tsa_real")
 
 
 def _captures(root: Path, size=24, bands=28, step=2) -> None:
