@@ -15,7 +15,7 @@ from numba import prange
 
 from recon.kernels import jit
 
-__all__ = ["gram", "project", "expand", "jacobi_eigh", "blocks"]
+__all__ = ["gram", "mix", "jacobi_eigh", "blocks"]
 
 #: Pixels per parallel block.
 _BLOCK = 4096
@@ -48,40 +48,23 @@ def gram(v, partial):
 
 
 @jit(parallel=True)
-def project(e, v, z):
-    r""":math:`z = E^\top v`: ``e`` ``(L, k)``, ``v`` ``(L, N)``, ``z`` ``(k, N)``, float32."""
-    n_bands, n = v.shape
-    k = e.shape[1]
+def mix(c, src, dst):
+    r""":math:`\mathrm{dst} = C\,\mathrm{src}`: ``c`` ``(P, Q)``, ``src`` ``(Q, N)``, ``dst``
+    ``(P, N)``, float32 (``dst`` may not alias ``src``).  The projection is ``c`` =
+    :math:`E^\top` (C-contiguous), the expansion ``c`` = :math:`E`."""
+    p_rows, n = dst.shape
+    q_rows = c.shape[1]
     for blk in prange((n + _BLOCK - 1) // _BLOCK):
         lo = blk * _BLOCK
         hi = min(n, lo + _BLOCK)
-        for j in range(k):
-            zj = z[j, lo:hi]
-            zj[:] = 0
-            for a in range(n_bands):
-                c = e[a, j]
-                va = v[a, lo:hi]
+        for p in range(p_rows):
+            dp = dst[p, lo:hi]
+            dp[:] = 0
+            for q in range(q_rows):
+                w = c[p, q]
+                sq = src[q, lo:hi]
                 for i in range(hi - lo):
-                    zj[i] += c * va[i]
-
-
-@jit(parallel=True)
-def expand(e, z, x):
-    r""":math:`x = E z`: ``e`` ``(L, k)``, ``z`` ``(k, N)``, ``x`` ``(L, N)``, float32
-    (``x`` may not alias ``z``)."""
-    n_bands, n = x.shape
-    k = e.shape[1]
-    for blk in prange((n + _BLOCK - 1) // _BLOCK):
-        lo = blk * _BLOCK
-        hi = min(n, lo + _BLOCK)
-        for a in range(n_bands):
-            xa = x[a, lo:hi]
-            xa[:] = 0
-            for j in range(k):
-                c = e[a, j]
-                zj = z[j, lo:hi]
-                for i in range(hi - lo):
-                    xa[i] += c * zj[i]
+                    dp[i] += w * sq[i]
 
 
 @jit()

@@ -112,7 +112,7 @@ def project(e: np.ndarray, v: np.ndarray) -> np.ndarray:
 
         z = np.empty((e.shape[1], m.shape[1]), dtype=m.dtype)
         with kernels.threads():
-            ks.project(np.ascontiguousarray(e), m, z)
+            ks.mix(np.ascontiguousarray(e.T), m, z)
     else:
         z = e.T @ m
     return z.reshape((e.shape[1],) + v.shape[1:])
@@ -128,7 +128,7 @@ def expand(e: np.ndarray, z: np.ndarray, out: np.ndarray | None = None) -> np.nd
         from recon.kernels import subspace as ks
 
         with kernels.threads():
-            ks.expand(np.ascontiguousarray(e), zf, out.reshape(e.shape[0], -1))
+            ks.mix(np.ascontiguousarray(e), zf, out.reshape(e.shape[0], -1))
         return out
     np.copyto(out, (e @ zf).reshape(shape))
     return out

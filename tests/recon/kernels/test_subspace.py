@@ -19,10 +19,10 @@ def test_gram_project_expand():
     np.testing.assert_allclose(partial.sum(axis=0), m @ m.T, rtol=1e-6)
     e = np.linalg.qr(rng.standard_normal((9, 4)))[0].astype(np.float32)
     z = np.empty((4, v.shape[1]), np.float32)
-    ks.project(e, v, z)
+    ks.mix(np.ascontiguousarray(e.T), v, z)                 # the projection E^T v
     np.testing.assert_allclose(z, e.T @ v, rtol=1e-5, atol=1e-5)
     x = np.empty_like(v)
-    ks.expand(e, z, x)
+    ks.mix(e, z, x)                                         # the expansion E z
     np.testing.assert_allclose(x, e @ z, rtol=1e-5, atol=1e-5)
 
 
