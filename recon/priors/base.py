@@ -28,7 +28,9 @@ methods only, so that a prior overrides one only to make it faster or to keep it
 A prior may also declare ``band_scalable = True`` (default False): it separates over the
 bands and is positively homogeneous of degree one, :math:`\varphi(x) = \sum_l \varphi_l(x_l)`
 with :math:`\varphi_l(\lambda x_l) = \lambda\varphi_l(x_l)`, so that solvers may take a step
-per band (:mod:`recon.solvers.band_metric`).
+per band (:mod:`recon.solvers.band_metric`).  A prior that couples the bands may declare
+``band_weighted = True`` instead: in that metric it is then taken on the band-weighted cube
+:math:`\varphi(w \odot x)`.
 
 Solvers look these up with :func:`gradient_prox`, :func:`combine_value`, :func:`refine` and
 :func:`describe`, so a bare :class:`Prior` that does not derive from :class:`PriorBase` works
@@ -86,6 +88,7 @@ class PriorBase:
 
     #: Whether the prior separates over the bands and is 1-homogeneous (see the module notes).
     band_scalable = False
+    band_weighted = False
 
     def prox(self, v: np.ndarray, step: float, out: np.ndarray | None = None) -> np.ndarray:
         raise NotImplementedError

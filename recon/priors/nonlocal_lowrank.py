@@ -204,6 +204,8 @@ class SubspaceNLR(SubspaceTV):
     """
 
     name = "subspace-nlr"
+    #: Not measured in FISTA's band metric (FISTA's momentum does not suit the denoiser).
+    band_weighted = False
 
     def __init__(self, weight: float, rank: int | None = None, *, strength: float = 1.0,
                  warmup: int = 60, patch: int = 4, radius: int = 10, group: int = 24,

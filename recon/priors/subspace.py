@@ -195,6 +195,9 @@ class SubspaceTV(_Subspace):
     """
 
     name = "subspace-tv"
+    #: In FISTA's band metric the prior is taken on the band-weighted cube
+    #: (:mod:`recon.solvers.band_metric`; measured in docs/priors.md).
+    band_weighted = True
 
     def __init__(self, weight: float, rank: int | None = None, tv_iters: int = 2,
                  isotropic: bool = True, threads: int | None = None):

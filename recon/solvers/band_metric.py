@@ -46,7 +46,20 @@ bands): then :math:`\mathrm{prox}_{\sigma\varphi_l}(v_l) = r\,\mathrm{prox}_{(\s
 one call of the prior's own prox at one step.  For the TV prox on the dual (Chambolle) the
 scaled call runs exactly the iterations of the per-band one, warm dual included.  A prior
 declares the property with the attribute ``band_scalable = True``
-(:class:`~recon.priors.TVPrior`); other priors get the scalar metric.
+(:class:`~recon.priors.TVPrior`).
+
+A prior that couples the bands may instead declare ``band_weighted = True``: in the band
+metric it is taken on the band-weighted cube, :math:`\psi(x) = \varphi(w \odot x)` with
+:math:`w_l = \sqrt{d_l/\max_l d_l}`, whose prox in the metric is exact,
+
+.. math::
+
+    \mathrm{prox}^D_\psi(v) = w^{-1} \odot \mathrm{prox}_{\sigma_0\varphi}(w \odot v),
+
+because :math:`\tfrac12\|x-v\|_D^2 = \tfrac{1}{2\sigma_0}\|w\odot x - w\odot v\|^2`.
+The objective is then :math:`\tfrac12\|g-Hx\|^2 + \varphi(w\odot x)`: the prior weighs each
+band by how strongly the operator sees it (the spectral subspace is estimated, and its
+coefficient images regularised, on :math:`w \odot x`).  Other priors get the scalar metric.
 
 :math:`c_l` is estimated with one Hutchinson probe: for a Rademacher cube :math:`u`,
 :math:`\mathbb E[u \odot H^\top H u] = \mathrm{diag}(H^\top H)`, and its mean over a band's
@@ -68,7 +81,7 @@ import numpy as np
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
 
-__all__ = ["DEFAULT_EXPONENT", "METRICS", "band_scalable", "band_column_norms_sq",
+__all__ = ["DEFAULT_EXPONENT", "METRICS", "band_scalable", "band_weighted", "band_column_norms_sq",
            "band_metric", "BandMetric"]
 
 #: The exponent :math:`p` of :math:`s_l = c_l^p` when none is given.
@@ -86,6 +99,12 @@ def band_scalable(prior) -> bool:
     """Whether ``prior`` separates over the bands and is positively 1-homogeneous (its
     ``band_scalable`` attribute; False when absent)."""
     return bool(getattr(prior, "band_scalable", False))
+
+
+def band_weighted(prior) -> bool:
+    """Whether ``prior`` may be taken on the band-weighted cube in the band metric (its
+    ``band_weighted`` attribute; False when absent)."""
+    return bool(getattr(prior, "band_weighted", False))
 
 
 def band_column_norms_sq(op: LinearOperator, dtype=np.float32, seed: int = 0) -> np.ndarray:
@@ -153,9 +172,12 @@ class BandMetric:
         :math:`d_l > 0` (:func:`band_metric`).
     dtype
         The loop's precision.
+    weighted : bool
+        The prior is taken on the band-weighted cube :math:`w\odot x` (a ``band_weighted``
+        prior, see the module notes) rather than scaled per band (a ``band_scalable`` one).
     """
 
-    def __init__(self, d, dtype):
+    def __init__(self, d, dtype, weighted: bool = False):
         d = np.asarray(d, dtype=np.float64)
         if d.ndim != 1 or not np.all(np.isfinite(d)) or not np.all(d > 0):
             raise InputError("the band metric must be positive and finite, one value per band")
@@ -163,8 +185,10 @@ class BandMetric:
         self.dmax = float(d.max())
         #: :math:`\sigma_0 = 1/\max_l d_l`, the step of the prior's prox.
         self.step = 1.0 / self.dmax
+        self.weighted = bool(weighted)
         self._w = (d / self.dmax).astype(dtype)[:, None, None]      # 1/r_l, in (0, 1]
         self._r = (self.dmax / d).astype(dtype)[:, None, None]      # r_l >= 1
+        self._sqrt_r = np.sqrt(self.dmax / d).astype(dtype)[:, None, None]   # 1/w_l
 
     def scaled_step(self, op: LinearOperator, r: np.ndarray, z: np.ndarray,
                     out: np.ndarray) -> np.ndarray:
@@ -176,10 +200,26 @@ class BandMetric:
 
     def prox(self, prior, v_scaled: np.ndarray, out: np.ndarray) -> np.ndarray:
         r"""``out`` :math:`= \mathrm{prox}^D_\varphi(v)` from ``v_scaled`` :math:`= v/r`
-        (:meth:`scaled_step`); ``out`` may be ``v_scaled``."""
+        (:meth:`scaled_step`); ``out`` may be ``v_scaled``, which is overwritten.  Weighted:
+        :math:`w^{-1}\odot\mathrm{prox}_{\sigma_0\varphi}(w\odot v)`, with
+        :math:`w \odot v = \sqrt r \odot (v/r)` and :math:`w^{-1} = \sqrt r`."""
+        if self.weighted:
+            np.multiply(v_scaled, self._sqrt_r, out=v_scaled)
+            prior.prox(v_scaled, self.step, out=out)
+            out *= self._sqrt_r
+            return out
         prior.prox(v_scaled, self.step, out=out)
         out *= self._r
         return out
+
+    def value(self, prior, x: np.ndarray) -> float | None:
+        r"""The prior's value as the loop minimises it: :math:`\varphi(x)`, or
+        :math:`\varphi(w\odot x)` when weighted; None where the prior has no value."""
+        if self.weighted:
+            v = prior.value(x / self._sqrt_r)
+        else:
+            v = prior.value(x)
+        return None if v is None else float(v)
 
     def restart_dot(self, z: np.ndarray, f: np.ndarray, f_prev: np.ndarray,
                     threads: int | None = None) -> float:

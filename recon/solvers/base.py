@@ -14,7 +14,11 @@ runs in float32, or in float64 when the measurement is float64 (for precision ch
 
 Stopping: after ``iters`` iterations, or earlier when ``tol`` is given and the relative change
 :math:`\|f_{k}-f_{k-1}\|_2 / \|f_{k-1}\|_2` falls below it (``converged=True``), or when the
-callback returns ``True``.
+callback returns ``True``.  The test is held for :data:`RESTART_HOLD` iterations after a
+momentum restart (:meth:`IterationLoop.restarted`): a restart sets the momentum to zero, and
+the next changes are those of plain gradient steps, smaller than the accelerated ones by a
+factor that grows with the iterations since the restart; on a slowly converging problem they
+fall below ``tol`` far from the minimum.
 """
 
 from __future__ import annotations
@@ -33,7 +37,11 @@ from recon.priors.tv import check_weight
 from recon.prox.tv import tv_norm
 
 __all__ = ["SolverResult", "Callback", "IterationLoop", "check_problem", "objective",
-           "operator_norm_sq", "resolve_prior"]
+           "operator_norm_sq", "resolve_prior", "RESTART_HOLD"]
+
+#: Iterations after a momentum restart (the restart's own included) in which the stopping rule
+#: is not tested (see the module notes).
+RESTART_HOLD = 10
 
 
 @dataclass
@@ -75,8 +83,9 @@ class Callback(Protocol):
     x : ndarray, shape (L, H, W)
         The current iterate.  Read-only by contract: the solver keeps using this buffer.
     info : dict
-        At least ``"rel_change"`` (float, relative change of the iterate) and ``"seconds"``
-        (time since the start), and ``"objective"`` (float or None).
+        At least ``"rel_change"`` (float, relative change of the iterate), ``"seconds"``
+        (time since the start), ``"objective"`` (float or None) and ``"held"`` (whether the
+        stopping rule is held this iteration, after a momentum restart).
 
     Returns
     -------
@@ -229,6 +238,12 @@ class IterationLoop:
         self.callback_seconds = 0.0
         self.converged = False
         self.iterations = 0
+        self._hold = 0
+
+    def restarted(self) -> None:
+        """The solver dropped its momentum this iteration: hold the stopping rule for
+        :data:`RESTART_HOLD` iterations, this one included."""
+        self._hold = RESTART_HOLD
 
     @property
     def needs_change(self) -> bool:
@@ -248,12 +263,14 @@ class IterationLoop:
         """Record iteration ``it`` (1-based); return True when the loop must stop."""
         self.iterations = it
         stop = False
-        if self.tol is not None and rel_change is not None and rel_change < self.tol:
+        held = self._hold > 0
+        self._hold = max(self._hold - 1, 0)
+        if self.tol is not None and rel_change is not None and rel_change < self.tol and not held:
             self.converged = True
             stop = True
         if self.callback is not None:
             t = time.perf_counter()
-            info = {"objective": obj, "rel_change": rel_change,
+            info = {"objective": obj, "rel_change": rel_change, "held": held,
                     "seconds": t - self.t0 - self.callback_seconds, **extra}
             if self.callback(it, x, info) is True:
                 stop = True

@@ -95,11 +95,12 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
         Threads of the TV prior and of the momentum's vector kernels.
     metric : {"scalar", "bands", "auto"}
         The step's metric: ``"scalar"`` the step :math:`1/L`; ``"bands"`` a diagonal metric
-        constant over each band (:mod:`recon.solvers.band_metric`: the same objective, the
-        weak bands no longer held to the strong ones' step), for priors that separate over
-        the bands and are 1-homogeneous (TV; an input error for others); ``"auto"`` the
-        band metric where the prior allows it, else the scalar one.  With ``"bands"``,
-        ``lipschitz`` is not taken.
+        constant over each band (:mod:`recon.solvers.band_metric`: the weak bands no longer
+        held to the strong ones' step), for priors that separate over the bands and are
+        1-homogeneous (TV: the same objective) or that may be taken on the band-weighted cube
+        (``subspace-tv``: the prior then reads :math:`\varphi(w\odot x)`); an input error for
+        others; ``"auto"`` the band metric where the prior allows it, else the scalar one.
+        With ``"bands"``, ``lipschitz`` is not taken.
     metric_exponent : float, optional
         The band metric's exponent :math:`p` in [0, 1]
         (:data:`recon.solvers.band_metric.DEFAULT_EXPONENT` if omitted).
@@ -123,10 +124,12 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
     bands = _use_band_metric(metric, prior, lipschitz)
     loop = IterationLoop(tol, callback)
     if bands:
-        from recon.solvers.band_metric import DEFAULT_EXPONENT, BandMetric, band_metric
+        from recon.solvers.band_metric import (DEFAULT_EXPONENT, BandMetric, band_metric,
+                                               band_scalable)
 
         exponent = DEFAULT_EXPONENT if metric_exponent is None else metric_exponent
-        bm = BandMetric(band_metric(op, dtype, exponent), dtype)
+        bm = BandMetric(band_metric(op, dtype, exponent), dtype,
+                        weighted=not band_scalable(prior))
         lip = bm.dmax
     else:
         if metric_exponent is not None:
@@ -176,13 +179,14 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
         if objective or restart:
             misfit, r_new = data_misfit(op, g, f)
             r_f_prev, r_f = r_f, r_new
-            value = prior_value(prior, f)
+            value = prior_value(prior, f) if bm is None else bm.value(prior, f)
             obj = None if value is None else misfit + value
         if restart and ((bm.restart_dot(z, f, f_prev, threads) if bm is not None else
                          _restart_dot(z, f, f_prev, step, threads)) > 0
                         or (obj is not None and obj > prev_obj)):
             t = 1.0
             restarts += 1
+            loop.restarted()
         prev_obj = obj if obj is not None else prev_obj
         t_next = 0.5 * (1.0 + math.sqrt(1.0 + 4.0 * t * t))
         b = (t - 1.0) / t_next
@@ -205,23 +209,26 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
                         seconds=loop.seconds(), converged=loop.converged,
                         info={"lipschitz": lip, "restarts": restarts,
                               "metric": "bands" if bands else "scalar",
+                              **({} if bm is None else {"band_weighted": bm.weighted}),
                               **({} if bm is None else {"band_metric": bm.d.tolist()}),
                               **prior_info(prior)})
 
 
 def _use_band_metric(metric: str, prior, lipschitz) -> bool:
     """Whether the loop runs in the band metric (see :func:`fista_tv`'s ``metric``)."""
-    from recon.solvers.band_metric import METRICS, band_scalable
+    from recon.solvers.band_metric import METRICS, band_scalable, band_weighted
 
     if metric not in METRICS:
         raise InputError(f"metric must be one of {', '.join(METRICS)}, got {metric!r}")
     if metric == "scalar":
         return False
-    if not band_scalable(prior):
+    if not (band_scalable(prior) or band_weighted(prior)):
         if metric == "bands":
             raise InputError(f"the band metric needs a prior that separates over the bands "
-                             f"and is 1-homogeneous (TV); {prior_info(prior)['prior']!r} is "
-                             f"not: use metric='scalar' or 'auto'")
+                             f"and is 1-homogeneous (TV), or one that may be taken on the "
+                             f"band-weighted cube (subspace-tv); "
+                             f"{prior_info(prior)['prior']!r} is neither: use "
+                             f"metric='scalar' or 'auto'")
         return False
     if lipschitz is not None:
         if metric == "bands":

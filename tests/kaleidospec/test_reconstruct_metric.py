@@ -28,11 +28,13 @@ def test_default_takes_the_band_metric_for_tv(problem):
     assert info["solver_info"]["metric"] == "scalar"
 
 
-def test_other_priors_keep_the_scalar_step(problem):
+def test_subspace_tv_takes_the_band_metric_weighted_and_nlr_the_scalar_step(problem):
     from kaleidospec.reconstruct import solve_views
 
     op, g = problem
     _, info = solve_views(op, g, 3, iters=5, tol=None, prior="subspace-tv", noise=0.01)
+    assert info["solver_info"]["metric"] == "bands" and info["solver_info"]["band_weighted"]
+    _, info = solve_views(op, g, 3, iters=2, tol=None, prior="subspace-nlr", noise=0.01)
     assert info["solver_info"]["metric"] == "scalar"
 
 

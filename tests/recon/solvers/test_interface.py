@@ -52,11 +52,31 @@ def test_callback_true_stops(name, problem):
 @pytest.mark.parametrize("name", NAMES)
 def test_tol_stops_early(name, problem):
     op, _, g = problem
-    changes = []
-    res = solve(name, op, g, iters=400, tau=0.05, tol=1e-3,
-                callback=lambda it, x, info: changes.append(info["rel_change"]))
+    changes, held = [], []
+
+    def cb(it, x, info):
+        changes.append(info["rel_change"])
+        held.append(info["held"])
+
+    res = solve(name, op, g, iters=400, tau=0.05, tol=1e-3, callback=cb)
     assert res.converged and res.iterations < 400
-    assert changes[-1] < 1e-3 and all(c >= 1e-3 for c in changes[:-1])
+    # The first change below tol stops the loop, unless the rule is held after a restart.
+    assert changes[-1] < 1e-3 and not held[-1]
+    assert all(c >= 1e-3 or h for c, h in zip(changes[:-1], held[:-1]))
+
+
+def test_rule_held_after_restart():
+    from recon.solvers.base import RESTART_HOLD, IterationLoop
+
+    loop = IterationLoop(1e-3, None)
+    assert not loop.step(1, None, 1e-2)
+    loop.restarted()
+    # Changes below tol in the hold (the restart's own iteration included) do not stop ...
+    for it in range(2, 2 + RESTART_HOLD):
+        assert not loop.step(it, None, 1e-4)
+    assert not loop.converged
+    # ... the first one after it does.
+    assert loop.step(2 + RESTART_HOLD, None, 1e-4) and loop.converged
 
 
 @pytest.mark.parametrize("name", NAMES)
