@@ -46,7 +46,7 @@ __all__ = ["DEFAULTS", "TAU_PER_VIEW", "TAU_PER_NOISE", "first_views", "tv_weigh
 #: :math:`\|f_k-f_{k-1}\|/\|f_{k-1}\|` falls below ``tol``, at most ``iters`` iterations: a fixed
 #: count either stops far from converged (``paper``) or runs on after it, while ``tol = 1e-3``
 #: stops close to the PSNR the cap reaches (docs/reconstruction.md, "The stopping rule"; the
-#: rule is held for ten iterations after a momentum restart, :mod:`recon.solvers.base`).
+#: rule is held for a few iterations after a momentum restart, :mod:`recon.solvers.base`).
 #: ``metric``: FISTA's step metric (:func:`recon.solvers.fista_tv`): ``"auto"`` takes a step
 #: per band (:mod:`recon.solvers.band_metric`) where the prior allows it: TV, the same
 #: objective reached in fewer iterations (docs/speed_product.md); ``subspace-tv``, taken on

@@ -14,11 +14,13 @@ runs in float32, or in float64 when the measurement is float64 (for precision ch
 
 Stopping: after ``iters`` iterations, or earlier when ``tol`` is given and the relative change
 :math:`\|f_{k}-f_{k-1}\|_2 / \|f_{k-1}\|_2` falls below it (``converged=True``), or when the
-callback returns ``True``.  The test is held for :data:`RESTART_HOLD` iterations after a
-momentum restart (:meth:`IterationLoop.restarted`): a restart sets the momentum to zero, and
-the next changes are those of plain gradient steps, smaller than the accelerated ones by a
-factor that grows with the iterations since the restart; on a slowly converging problem they
-fall below ``tol`` far from the minimum.
+callback returns ``True``.  After a momentum restart (:meth:`IterationLoop.restarted`) the
+test is held for half as many iterations as the momentum had run before it, at least 2 and
+at most :data:`RESTART_HOLD`: a restart sets the momentum to zero, and the next changes are
+those of plain gradient steps, smaller than the accelerated ones by a factor that grows with
+the iterations since the restart, so on a slowly converging problem they fall below ``tol``
+far from the minimum.  Restarts that follow each other closely (the momentum no longer
+accelerates) hold the test briefly, so that they cannot hold it for ever.
 """
 
 from __future__ import annotations
@@ -39,8 +41,8 @@ from recon.prox.tv import tv_norm
 __all__ = ["SolverResult", "Callback", "IterationLoop", "check_problem", "objective",
            "operator_norm_sq", "resolve_prior", "RESTART_HOLD"]
 
-#: Iterations after a momentum restart (the restart's own included) in which the stopping rule
-#: is not tested (see the module notes).
+#: The most iterations after a momentum restart (the restart's own included) in which the
+#: stopping rule is not tested (see the module notes).
 RESTART_HOLD = 10
 
 
@@ -239,11 +241,17 @@ class IterationLoop:
         self.converged = False
         self.iterations = 0
         self._hold = 0
+        self._last_restart = 0
 
     def restarted(self) -> None:
-        """The solver dropped its momentum this iteration: hold the stopping rule for
-        :data:`RESTART_HOLD` iterations, this one included."""
-        self._hold = RESTART_HOLD
+        """The solver dropped its momentum in the iteration under way: hold the stopping rule
+        for half as many iterations, this one included, as the momentum ran since the
+        previous restart (or the start), at least 2 and at most :data:`RESTART_HOLD`; a hold
+        under way is not shortened."""
+        it = self.iterations + 1
+        hold = min(RESTART_HOLD, max(2, (it - self._last_restart) // 2))
+        self._hold = max(self._hold, hold)
+        self._last_restart = it
 
     @property
     def needs_change(self) -> bool:

@@ -69,14 +69,37 @@ def test_rule_held_after_restart():
     from recon.solvers.base import RESTART_HOLD, IterationLoop
 
     loop = IterationLoop(1e-3, None)
-    assert not loop.step(1, None, 1e-2)
+    for it in range(1, 51):
+        assert not loop.step(it, None, 1e-2)
     loop.restarted()
-    # Changes below tol in the hold (the restart's own iteration included) do not stop ...
-    for it in range(2, 2 + RESTART_HOLD):
+    # After 50 iterations of momentum, changes below tol in the hold (the restart's own
+    # iteration included) do not stop ...
+    for it in range(51, 51 + RESTART_HOLD):
         assert not loop.step(it, None, 1e-4)
     assert not loop.converged
     # ... the first one after it does.
-    assert loop.step(2 + RESTART_HOLD, None, 1e-4) and loop.converged
+    assert loop.step(51 + RESTART_HOLD, None, 1e-4) and loop.converged
+
+
+def test_close_restarts_hold_briefly():
+    from recon.solvers.base import RESTART_HOLD, IterationLoop
+
+    # Restarts every third iteration (the momentum no longer accelerates) hold the rule for
+    # two iterations each, so it is tested, and stops, between them.
+    loop = IterationLoop(1e-3, None)
+    for it in range(1, 31):
+        assert not loop.step(it, None, 1e-2)
+    stopped = None
+    for it in range(31, 31 + 4 * RESTART_HOLD):
+        if (it - 31) % 3 == 0:
+            loop.restarted()
+        if loop.step(it, None, 1e-4):
+            stopped = it
+            break
+    # The first restart (after 30 iterations of momentum) holds RESTART_HOLD iterations, 31-40,
+    # which the restarts at 34 and 37 do not shorten; the one at 40 holds 40-41: 42 is tested
+    # and stops.
+    assert stopped == 42 and loop.converged
 
 
 @pytest.mark.parametrize("name", NAMES)
