@@ -194,11 +194,16 @@ class FrameRenderer:
 
         return exposure(self.electrons(cube), self.design, auto_exposure)
 
-    def render(self, cube, *, radiance_scale: float, seed=0, noise: bool = True) -> np.ndarray:
-        """Raw frame (Hs, Ws) float32 in DN; ``seed`` (int or sequence) seeds the noise."""
+    def render(self, cube, *, radiance_scale: float, seed=0, noise: bool = True,
+               electrons=None) -> np.ndarray:
+        """Raw frame (Hs, Ws) float32 in DN; ``seed`` (int or sequence) seeds the noise.
+
+        ``electrons``, :meth:`electrons` of ``cube`` when the caller has them already (the
+        exposure of a video's first frame is taken from them), is scaled in place and used
+        instead of computing them again: the same frame."""
         from sim.sensor import digitise
 
-        ne = self.electrons(cube)
+        ne = self.electrons(cube) if electrons is None else electrons
         ne *= np.float32(radiance_scale)
         return digitise(ne, self.design, rng=np.random.default_rng(seed), noise=noise)
 

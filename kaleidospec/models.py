@@ -39,7 +39,7 @@ from recon.errors import InputError
 
 __all__ = ["MODELS", "DEFAULT_MODEL", "RUN_MODELS", "GAINS", "SMEAR_SAMPLES", "check_model",
            "holds", "model_of", "model_gains", "cube_grid", "grid_offset", "shifted_area_weights",
-           "truth_on_grid", "box_means"]
+           "truth_on_grid", "truth_mover", "box_means"]
 
 #: Every calibrated model a calibration can hold; the first (shifted) is in every calibration.
 MODELS = ("shifted", "smeared", "footprint")
@@ -146,7 +146,8 @@ def shifted_area_weights(n_in: int, n_out: int, offset: float, scale: float) -> 
     return w / scale
 
 
-def truth_on_grid(truth, design, cal, model: str | None = None, view_ids=None) -> np.ndarray:
+def truth_on_grid(truth, design, cal, model: str | None = None, view_ids=None, *,
+                  corners=None) -> np.ndarray:
     r"""The ground truth moved onto the grid of the calibrated ``model`` (:func:`cube_grid`) as
     the views ``view_ids`` (default: all the calibration's) see it, (H, W, L) float32.
 
@@ -172,6 +173,10 @@ def truth_on_grid(truth, design, cal, model: str | None = None, view_ids=None) -
 
     Pass the scene at its own resolution wherever it exists: the :math:`v \times v` mean has
     lost the detail within a pixel (a truth that flatters a smooth reconstruction).
+
+    ``corners``, :func:`kaleidospec.instrument.grid_on_scene`'s ``(x, y)`` for these
+    ``design``, ``cal`` and ``view_ids`` when already computed (:func:`truth_mover`: the
+    frames of a video share them).
     """
     t = np.asarray(truth, dtype=np.float32)
     (h, w), n = cube_grid(cal, model), cal.n_bands
@@ -183,12 +188,32 @@ def truth_on_grid(truth, design, cal, model: str | None = None, view_ids=None) -
         wx = shifted_area_weights(t.shape[1], w, 0.0, t.shape[1] / v).astype(np.float32)
         out = np.einsum("ij,jkl,mk->iml", wy, t, wx, optimize=True)
         return np.ascontiguousarray(out, dtype=np.float32)
-    from kaleidospec.instrument import grid_on_scene
+    if corners is None:
+        from kaleidospec.instrument import grid_on_scene
 
-    x, y = grid_on_scene(design, cal, view_ids)
+        corners = grid_on_scene(design, cal, view_ids)
+    x, y = corners
     sx, sy = t.shape[1] / v, t.shape[0] / v
     return box_means(t, 0.5 * (x[:-1, :-1] + x[1:, :-1]) * sx, 0.5 * (x[:-1, 1:] + x[1:, 1:]) * sx,
                      0.5 * (y[:-1, :-1] + y[:-1, 1:]) * sy, 0.5 * (y[1:, :-1] + y[1:, 1:]) * sy)
+
+
+def truth_mover(design, cal, model: str | None = None, view_ids=None):
+    """``move(truth)`` = :func:`truth_on_grid` ``(truth, design, cal, model, view_ids)``, with
+    where the grid lies on the scene (:func:`kaleidospec.instrument.grid_on_scene`, the
+    simulator's maps evaluated for every view) computed on the first call only: the same
+    cubes for every truth of one design, as a video's frames are."""
+    corners = []
+
+    def move(truth):
+        if not corners and model_of(cal, model) != "footprint":
+            from kaleidospec.instrument import grid_on_scene
+
+            corners.append(grid_on_scene(design, cal, view_ids))
+        return truth_on_grid(truth, design, cal, model, view_ids,
+                             corners=corners[0] if corners else None)
+
+    return move
 
 
 def box_means(image, x0, x1, y0, y1) -> np.ndarray:

@@ -227,13 +227,18 @@ def capture(design, cube, wavelengths, *, wavelength_nm=None, repeats: int = 4, 
 
 
 def render_captures(design, *, repeats: int = 4, seed: int = 1000, progress: bool = False,
-                    keep_transport: bool = True) -> Captures:
+                    keep_transport: bool = True, on_line=None) -> Captures:
     """Render every calibration capture of ``design`` (see the module docstring).
 
     The targets are cubes on the centre view's grid (``view_size_px`` square).  ``seed`` seeds
     the sensor noise (each capture its own seeds).  The band-pass captures (whites, ColorChecker)
     come first; with ``keep_transport=False`` their transport is dropped from memory before the
     monochromatic ones (0.4 GB for the paper design, while the white and line stacks fill).
+
+    ``on_line``, a callable ``on_line(l, frame, whites)``, receives each line capture (band
+    ``l``) as it is read out, with the whole (L, Hs, Ws) white stack (rendered before the
+    lines), instead of its being kept: ``Captures.line`` is then None, and the line stack
+    (0.95 GB on the paper design) is never held.  The captures themselves are the same.
     """
     from scenes.calibration import line, white
     from scenes.colorchecker import colorchecker, patch_boxes
@@ -249,8 +254,11 @@ def render_captures(design, *, repeats: int = 4, seed: int = 1000, progress: boo
     steps = [("white", l) for l in range(wl.size)] + [("line", l) for l in range(wl.size)] + \
             [("checker", None), ("checker_white", None), ("colorchecker", None)]
     # Each capture keeps the noise seed of its place in `steps`; the band-pass ones (one
-    # transport for all) run first, so that transport can go before the monochromatic ones.
-    band_pass = [i for i, (name, _) in enumerate(steps) if name in ("white", "colorchecker")]
+    # transport for all) run first, so that transport can go before the monochromatic ones,
+    # and the ColorChecker first among them: its every band lit makes the largest blur
+    # buffers (0.4 GB more on `paper`), which then come and go before the white stack fills.
+    band_pass = [i for i, (name, _) in enumerate(steps) if name == "colorchecker"] + \
+        [i for i, (name, _) in enumerate(steps) if name == "white"]
     order = band_pass + [i for i in range(len(steps)) if i not in band_pass]
     bar = None
     if progress:
@@ -261,7 +269,7 @@ def render_captures(design, *, repeats: int = 4, seed: int = 1000, progress: boo
 
     # The band stacks are filled in place: a list of frames and its np.stack would hold both
     # (1.9 GB more at the peak for the paper design's 26 whites and 26 lines).
-    whites = lines = None
+    whites = lines = band = None
     meta: dict = {"white": [], "line": []}
     out = {}
     before = checker_known = transport.held()
@@ -279,9 +287,12 @@ def render_captures(design, *, repeats: int = 4, seed: int = 1000, progress: boo
                 # width), not a line at the band centre: the mask image then carries the
                 # dispersion smear inside the band exactly as a scene frame does (measured: +4 dB
                 # for one view on the ColorChecker of the small design).
-                band = np.zeros_like(white_cube)
+                # One target buffer for every band (84 MB on `paper`), its band lit in turn.
+                if band is None:
+                    band = np.zeros_like(white_cube)
                 band[:, :, l] = white_cube[:, :, l]
                 f, m = capture(design, band, wl, repeats=repeats, seed=s, target="white")
+                band[:, :, l] = 0.0
                 m["band_nm"] = float(wl[l])
                 if whites is None:
                     whites = np.empty((wl.size,) + f.shape, np.float32)
@@ -291,10 +302,13 @@ def render_captures(design, *, repeats: int = 4, seed: int = 1000, progress: boo
                 f, m = capture(design, line_cube, wl, wavelength_nm=wl[l], repeats=repeats,
                                seed=s, target="line")
                 m["column"] = v // 2       # the line's place on the target (its datasheet)
-                if lines is None:
-                    lines = np.empty((wl.size,) + f.shape, np.float32)
-                lines[l] = f
                 meta["line"].append(m)
+                if on_line is not None:
+                    on_line(l, f, whites)
+                else:
+                    if lines is None:
+                        lines = np.empty((wl.size,) + f.shape, np.float32)
+                    lines[l] = f
             elif name == "checker":
                 f, m = capture(design, checker_cube, wl, wavelength_nm=CHECKER_NM,
                                repeats=repeats, seed=s, target="checkerboard")
