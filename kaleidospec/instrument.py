@@ -187,12 +187,14 @@ class FrameRenderer:
             raise InputError(f"cube shape {cube.shape[:2]} differs from the renderer's {self.shape}")
         return self.model.electrons(cube)
 
-    def exposure_for(self, cube, auto_exposure: float = 0.8) -> float:
+    def exposure_for(self, cube, auto_exposure: float = 0.8, *, electrons=None) -> float:
         """The radiance scale that puts the brightest pixel of ``cube`` at ``auto_exposure`` of
-        the full well (:func:`sim.frame.simulate_frame`'s rule)."""
+        the full well (:func:`sim.frame.simulate_frame`'s rule); ``electrons``, the cube's
+        :meth:`electrons` when the caller has them already."""
         from sim.frame import exposure
 
-        return exposure(self.electrons(cube), self.design, auto_exposure)
+        ne = self.electrons(cube) if electrons is None else electrons
+        return exposure(ne, self.design, auto_exposure)
 
     def render(self, cube, *, radiance_scale: float, seed=0, noise: bool = True,
                electrons=None) -> np.ndarray:

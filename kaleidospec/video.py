@@ -605,12 +605,11 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
             raise InputError(f"{out} was split into segments of {segments[0][1] - segments[0][0]} "
                              "frames; resume it with the same --segment")
     else:
-        from sim.frame import exposure
-
         # Frame 0's electrons set the exposure, and render frame 0 (not computed twice).
-        first = (anim.frame(0),)
-        first += (renderer.electrons(first[0]),)
-        radiance_scale = exposure(first[1], d)
+        cube0 = anim.frame(0)
+        first = (cube0, renderer.electrons(cube0))
+        radiance_scale = renderer.exposure_for(cube0, electrons=first[1])
+        del cube0
         seg = segment_frames if segment_frames is not None else max(1, math.ceil(n / nworkers))
         segments = plan_segments(n, seg)
         write_json(lay.manifest, {"kind": "kaleidospec video", "config": config,

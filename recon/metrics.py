@@ -43,6 +43,10 @@ _CMFS_NAME = "CIE 1931 2 Degree Standard Observer"
 # --------------------------------------------------------------------------------------------
 # validation
 # --------------------------------------------------------------------------------------------
+#: Rows of a cube per block of :func:`sam`'s unit spectra.
+_SAM_ROWS = 64
+
+
 def _pair(est, truth, name: str) -> tuple[np.ndarray, np.ndarray]:
     est = np.asarray(est)
     truth = np.asarray(truth)
@@ -89,7 +93,10 @@ def psnr(est, truth) -> float:
     """
     e, t = _pair(est, truth, "psnr")
     s = _global_scale(t, "psnr")
-    mse = float(np.mean(((e - t) / s) ** 2))
+    # ((e - t) / s)**2 in one float64 array, element by element the same operations.
+    d = np.subtract(e, t)
+    d /= s
+    mse = float(np.mean(np.square(d, out=d)))
     return float(_psnr_from_mse(mse))
 
 
@@ -124,14 +131,21 @@ def psnr_bandwise(est, truth, *, normalise: str = "reference", return_bands: boo
     lo = t.min(axis=(0, 1))
     rng = t.max(axis=(0, 1)) - lo
     rng = np.where(rng > 0, rng, 1.0)
-    tn = (t - lo) / rng
+    # Each step into the float64 array it makes (the same operations, element by element):
+    # two cube-sized temporaries, where the expression would hold five.
+    tn = np.subtract(t, lo)
+    tn /= rng
     if normalise == "reference":
-        en = (e - lo) / rng
+        en = np.subtract(e, lo)
+        en /= rng
     else:
         elo = e.min(axis=(0, 1))
         erng = e.max(axis=(0, 1)) - elo
-        en = (e - elo) / np.where(erng > 0, erng, 1.0)
-    mse = np.mean((en - tn) ** 2, axis=(0, 1))
+        en = np.subtract(e, elo)
+        en /= np.where(erng > 0, erng, 1.0)
+    en -= tn
+    del tn
+    mse = np.mean(np.square(en, out=en), axis=(0, 1))
     bands = _psnr_from_mse(mse)
     mean = float(np.mean(bands))
     return (mean, bands) if return_bands else mean
@@ -193,12 +207,17 @@ def sam(est, truth, *, return_map: bool = False):
     nt = np.sqrt(np.einsum("ijk,ijk->ij", t, t))
     valid = (ne > 0) & (nt > 0)
     # theta = 2 arcsin(|e/|e| - t/|t|| / 2): the same angle as arccos of the normalised dot
-    # product, but accurate near 0 where arccos loses half the digits.
-    ue = e[valid] / ne[valid][:, None]
-    ut = t[valid] / nt[valid][:, None]
-    chord = np.linalg.norm(ue - ut, axis=-1)
+    # product, but accurate near 0 where arccos loses half the digits.  Each pixel's angle is
+    # its own, so they are taken a block of rows at a time (the unit spectra of a whole
+    # `paper` cube would be three float64 cubes more).
     ang = np.full(ne.shape, np.nan)
-    ang[valid] = np.degrees(2.0 * np.arcsin(np.clip(chord / 2.0, 0.0, 1.0)))
+    for a in range(0, ne.shape[0], _SAM_ROWS):
+        rows = slice(a, a + _SAM_ROWS)
+        v = valid[rows]
+        ue = e[rows][v] / ne[rows][v][:, None]
+        ue -= t[rows][v] / nt[rows][v][:, None]
+        chord = np.linalg.norm(ue, axis=-1)
+        ang[rows][v] = np.degrees(2.0 * np.arcsin(np.clip(chord / 2.0, 0.0, 1.0)))
     mean = float(np.mean(ang[valid])) if np.any(valid) else float("nan")
     return (mean, ang) if return_map else mean
 
@@ -210,10 +229,10 @@ def rmse(est, truth, *, scale: bool = False) -> float:
     :func:`psnr`), so that ``psnr == -20 log10(rmse(scale=True))``.
     """
     e, t = _pair(est, truth, "rmse")
-    d = e - t
+    d = np.subtract(e, t)
     if scale:
-        d = d / _global_scale(t, "rmse")
-    return float(np.sqrt(np.mean(d**2)))
+        d /= _global_scale(t, "rmse")
+    return float(np.sqrt(np.mean(np.square(d, out=d))))
 
 
 # --------------------------------------------------------------------------------------------

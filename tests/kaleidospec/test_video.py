@@ -305,7 +305,7 @@ def test_first_frame_from_the_exposures_electrons_is_the_same(tiny, tmp_path):
     s = r.exposure_for(anim.frame(0))
     cube0 = anim.frame(0)
     ne0 = r.electrons(cube0)
-    assert exposure(ne0, tiny) == s
+    assert exposure(ne0, tiny) == s == r.exposure_for(cube0, electrons=ne0)
     a, b = tmp_path / "a", tmp_path / "b"
     render_sequence(anim, tiny, a, radiance_scale=s, renderer=r, progress=False)
     render_sequence(anim, tiny, b, radiance_scale=s, renderer=r, progress=False,
