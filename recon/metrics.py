@@ -43,7 +43,8 @@ _CMFS_NAME = "CIE 1931 2 Degree Standard Observer"
 # --------------------------------------------------------------------------------------------
 # validation
 # --------------------------------------------------------------------------------------------
-#: Rows of a cube per block of :func:`sam`'s unit spectra.
+#: Rows of a cube per block of :func:`sam`'s unit spectra and :func:`psnr_bandwise`'s
+#: normalised differences.
 _SAM_ROWS = 64
 
 
@@ -131,21 +132,25 @@ def psnr_bandwise(est, truth, *, normalise: str = "reference", return_bands: boo
     lo = t.min(axis=(0, 1))
     rng = t.max(axis=(0, 1)) - lo
     rng = np.where(rng > 0, rng, 1.0)
-    # Each step into the float64 array it makes (the same operations, element by element):
-    # two cube-sized temporaries, where the expression would hold five.
-    tn = np.subtract(t, lo)
-    tn /= rng
     if normalise == "reference":
-        en = np.subtract(e, lo)
-        en /= rng
+        elo, erng = lo, rng
     else:
         elo = e.min(axis=(0, 1))
         erng = e.max(axis=(0, 1)) - elo
-        en = np.subtract(e, elo)
-        en /= np.where(erng > 0, erng, 1.0)
-    en -= tn
-    del tn
-    mse = np.mean(np.square(en, out=en), axis=(0, 1))
+        erng = np.where(erng > 0, erng, 1.0)
+    # ((e - elo) / erng - (t - lo) / rng)**2 a block of rows at a time, into one array laid
+    # out as the cubes are (the mean then sums in the same order): the same numbers as the
+    # whole-cube expression, one cube-sized temporary where it would hold five.
+    sq = np.empty_like(e)
+    for a in range(0, e.shape[0], _SAM_ROWS):
+        rows = slice(a, a + _SAM_ROWS)
+        en = np.subtract(e[rows], elo)
+        en /= erng
+        tn = np.subtract(t[rows], lo)
+        tn /= rng
+        en -= tn
+        np.square(en, out=sq[rows])
+    mse = np.mean(sq, axis=(0, 1))
     bands = _psnr_from_mse(mse)
     mean = float(np.mean(bands))
     return (mean, bands) if return_bands else mean
@@ -172,8 +177,9 @@ def ssim(est, truth, *, return_bands: bool = False):
     if min(t.shape[:2]) < 11:
         raise InputError(f"ssim: images must be at least 11x11 pixels, got {t.shape[:2]}")
     s = _global_scale(t, "ssim")
-    e = e / s
-    t = t / s
+    # In place where _pair made the float64 copies (not the caller's arrays).
+    e = np.divide(e, s, out=None if np.may_share_memory(e, est) else e)
+    t = np.divide(t, s, out=None if np.may_share_memory(t, truth) else t)
     bands = np.array(
         [
             structural_similarity(

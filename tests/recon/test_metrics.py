@@ -175,7 +175,7 @@ def test_all_metrics_keys(cubes):
 
 
 def test_lean_metrics_are_the_plain_expressions_to_the_bit():
-    """psnr, psnr_bandwise, rmse and sam work in place and by blocks of rows (memory at the
+    """psnr, psnr_bandwise, rmse, sam and ssim work in place and by blocks of rows (memory at the
     end of a `paper` solve): the same numbers, to the bit, as the plain NumPy expressions, on
     a band-major view (as ``recon.app`` hands them over), zero spectra included and more rows
     than one block."""
@@ -209,3 +209,14 @@ def test_lean_metrics_are_the_plain_expressions_to_the_bit():
     mean, got = metrics.sam(est, truth, return_map=True)
     np.testing.assert_array_equal(got, ang)
     assert mean == float(np.mean(ang[valid])) and np.isnan(got[3, 4])
+    from skimage.metrics import structural_similarity
+
+    ref = np.mean([structural_similarity((t / s)[:, :, l], (e / s)[:, :, l], data_range=1.0,
+                                         gaussian_weights=True, sigma=1.5,
+                                         use_sample_covariance=False) for l in range(n)])
+    assert metrics.ssim(est, truth) == float(ref)
+    # float64 inputs are the callers' arrays: never divided in place.
+    e0, t0 = e.copy(), t.copy()
+    assert metrics.ssim(e, t) == float(ref)
+    np.testing.assert_array_equal(e, e0)
+    np.testing.assert_array_equal(t, t0)
