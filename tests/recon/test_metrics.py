@@ -174,16 +174,20 @@ def test_all_metrics_keys(cubes):
     assert "delta_e2000" not in metrics.all_metrics(est, truth)
 
 
-def test_lean_metrics_are_the_plain_expressions_to_the_bit():
-    """psnr, psnr_bandwise, rmse, sam and ssim work in place and by blocks of rows (memory at the
-    end of a `paper` solve): the same numbers, to the bit, as the plain NumPy expressions, on
-    a band-major view (as ``recon.app`` hands them over), zero spectra included and more rows
-    than one block."""
+@pytest.mark.parametrize("layout", ["band-major", "C"])
+def test_lean_metrics_are_the_plain_expressions_to_the_bit(layout):
+    """psnr, psnr_bandwise, rmse, sam and ssim work in float64 a block of rows (or a band) at a
+    time, without float64 copies of the cubes (memory at the end of a `paper` solve): the same
+    numbers, to the bit, as the plain NumPy expressions on the float64 cubes, on a band-major
+    view (as ``recon.app`` hands them over) and a C-ordered cube, zero spectra included and
+    more rows than one block."""
     from recon import metrics
 
     rng = np.random.default_rng(7)
-    h, w, n = metrics._SAM_ROWS * 2 + 5, 17, 6
+    h, w, n = metrics._ROWS * 2 + 5, 17, 6
     truth = np.moveaxis(rng.random((n, h, w), dtype=np.float32), 0, 2)
+    if layout == "C":
+        truth = np.ascontiguousarray(truth)
     est = (truth + np.float32(0.05) * rng.standard_normal(truth.shape, dtype=np.float32))
     est[3, 4] = 0.0
     e, t = est.astype(np.float64), truth.astype(np.float64)
