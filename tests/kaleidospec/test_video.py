@@ -308,8 +308,9 @@ def test_first_frame_from_the_exposures_electrons_is_the_same(tiny, tmp_path):
     assert exposure(ne0, tiny) == s == r.exposure_for(cube0, electrons=ne0)
     a, b = tmp_path / "a", tmp_path / "b"
     render_sequence(anim, tiny, a, radiance_scale=s, renderer=r, progress=False)
-    render_sequence(anim, tiny, b, radiance_scale=s, renderer=r, progress=False,
-                    first=(cube0, ne0))
+    first = [cube0, ne0]
+    render_sequence(anim, tiny, b, radiance_scale=s, renderer=r, progress=False, first=first)
+    assert first == []                   # taken: the caller holds frame 0's cube no longer
     for i in range(2):
         fa, ma = read_raw(VideoLayout(a).raw(i))
         fb, mb = read_raw(VideoLayout(b).raw(i))
