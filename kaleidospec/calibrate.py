@@ -203,9 +203,11 @@ def calibrate_from_captures(design, *, models=None, repeats: int = 4, progress: 
     from kaleidospec.report import progress_bar
     from recon.calibration import (airy_kernel, airy_radius_px, build_calibration,
                                    find_view_boxes, fit_dispersion, line_centroids,
-                                   mask_images, view_homographies, with_leads)
-    from recon.calibration.dispersion import band_mean_positions, band_positions
-    from recon.calibration.mask import view_stack, white_levels
+                                   view_homographies, with_leads)
+    from recon.calibration.dispersion import (band_mean_positions, band_positions,
+                                              line_profiles, profile_centroids)
+    from recon.calibration.mask import (deconvolve_views, normalise_mask_images, view_stack,
+                                        white_levels)
     from recon.errors import InputError
 
     radiometry = RADIOMETRY if radiometry is None else radiometry
@@ -216,37 +218,57 @@ def calibrate_from_captures(design, *, models=None, repeats: int = 4, progress: 
     if unknown:
         raise InputError(f"unknown calibrated model(s) {unknown}; known: {', '.join(MODELS)}")
     extra = [name for name in STEPS if name in wanted]
+    ids = tuple(sorted(design.views))
     owned = captures is None
+    profiles = {}
     if owned:
+        # Nothing reads a line capture but its column profiles, and the whites, which give
+        # the views' boxes, are all rendered before the lines: each line frame is reduced to
+        # its profiles as it is read out, so the line stack (26 full frames, 0.95 GB on
+        # `paper`) is never held beside the whites (the same numbers as from the stack,
+        # recon.calibration.dispersion.line_profiles).
+        def on_line(l, frame, whites):
+            if "boxes" not in profiles:
+                profiles["boxes"] = find_view_boxes(whites, ids, margin_x=BOX_MARGIN_X)
+                profiles["bands"] = [None] * len(whites)
+            profiles["bands"][l] = line_profiles(frame[None], profiles["boxes"])[:, 0]
+
         # No capture is rendered after these but the comb captures: without them the
         # captures' transport is not needed again in this process.
         keep = "footprint" in extra
         captures = render_captures(design, repeats=repeats, progress=progress,
-                                   keep_transport=keep)
+                                   keep_transport=keep, on_line=on_line)
         if not keep:
             from kaleidospec.instrument import release_transports
 
             release_transports("captures")
     caps = captures
-    ids = tuple(sorted(design.views))
     wl = caps.wavelengths
     steps = ["views", "dispersion", "masks", "geometry"] + [STEPS[m][0] for m in extra] \
         + ["radiometry"]
     bar = progress_bar(len(steps), "calibration", progress)
     try:
-        boxes = find_view_boxes(caps.white, ids, margin_x=BOX_MARGIN_X)
-        bar.update()
-        cen = line_centroids(caps.line, boxes)
         if owned:
-            # Nothing reads the line frames after their centroids: 26 full frames (0.9 GB on
-            # `paper`) go before the mask images and the checkerboard raise the peak.
-            caps.line = None
+            boxes = profiles["boxes"]
+            bar.update()
+            cen = profile_centroids(np.stack(profiles["bands"], axis=1))
+        else:
+            boxes = find_view_boxes(caps.white, ids, margin_x=BOX_MARGIN_X)
+            bar.update()
+            cen = line_centroids(caps.line, boxes)
         fit = fit_dispersion(wl, cen, ref_nm=CHECKER_NM, degree=min(3, wl.size - 1))
         bar.update()
         radii = airy_radius_px(wl, design.imaging_f_number, design.sensor_pixel_um)
         airy = deconvolution_radii(design, wl)
-        masks = floor_chrome(mask_images(caps.white, boxes, airy_radius=airy,
-                                         progress=progress))
+        # The whites' crops once: the mask images are deconvolved from a copy of them and
+        # the flat-field gains below fit them again; the full white frames (0.95 GB on
+        # `paper`) go once cropped, unless the smeared model's step reads them.
+        whites = view_stack(caps.white, boxes)
+        if owned and "smeared" not in extra:
+            caps.white = None
+        masks = normalise_mask_images(deconvolve_views(whites.copy(), airy_radius=airy,
+                                                       progress=progress))
+        masks = floor_chrome(masks, out=masks)
         bar.update()
         # The board's layout is what a lab knows from its target: read it from the sidecar.
         pattern = tuple(caps.meta["checker"]["pattern_size"])
@@ -256,8 +278,6 @@ def calibrate_from_captures(design, *, models=None, repeats: int = 4, progress: 
         # Provisional gains from the whites (radiance E = 1 per band): the mask images are the
         # white captures divided by their white level w_l (DN at an open pixel), taken with
         # exposure s_l, so DN/s per unit radiance at an open pixel is w_l / s_l.
-        # The crops once: the flat-field gains through the model below fit them again.
-        whites = view_stack(caps.white, boxes)
         levels = white_levels(whites)
         expo = np.array([m["radiance_scale"] for m in caps.meta["white"]], dtype=np.float64)
         gains0 = expo / levels
@@ -328,14 +348,19 @@ def model_flat_gains(cal, whites, exposures) -> np.ndarray:
     return flat_field_gains(band_white, whites, exposures)
 
 
-def floor_chrome(masks) -> np.ndarray:
-    """``masks`` with every value below :data:`MASK_FLOOR` set to exactly zero.
+def floor_chrome(masks, out=None) -> np.ndarray:
+    """``masks`` with every value below :data:`MASK_FLOOR` set to exactly zero (into ``out``
+    when given, which may be ``masks``: the mask images are the calibration's largest array).
 
     Chrome cells are not perfectly dark in a capture (stray light, the sensor's blur): values
     near zero would give measurement pixels with a tiny row norm, which GAP-TV's
     diag(HH^T)^-1 step amplifies without bound.
     """
-    return np.where(masks >= MASK_FLOOR, masks, np.float32(0.0))
+    if out is None:
+        return np.where(masks >= MASK_FLOOR, masks, np.float32(0.0))
+    np.copyto(out, masks)
+    out[~(masks >= MASK_FLOOR)] = np.float32(0.0)
+    return out
 
 
 def sensor_noise(design, caps):

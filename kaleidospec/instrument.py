@@ -187,18 +187,25 @@ class FrameRenderer:
             raise InputError(f"cube shape {cube.shape[:2]} differs from the renderer's {self.shape}")
         return self.model.electrons(cube)
 
-    def exposure_for(self, cube, auto_exposure: float = 0.8) -> float:
+    def exposure_for(self, cube, auto_exposure: float = 0.8, *, electrons=None) -> float:
         """The radiance scale that puts the brightest pixel of ``cube`` at ``auto_exposure`` of
-        the full well (:func:`sim.frame.simulate_frame`'s rule)."""
+        the full well (:func:`sim.frame.simulate_frame`'s rule); ``electrons``, the cube's
+        :meth:`electrons` when the caller has them already."""
         from sim.frame import exposure
 
-        return exposure(self.electrons(cube), self.design, auto_exposure)
+        ne = self.electrons(cube) if electrons is None else electrons
+        return exposure(ne, self.design, auto_exposure)
 
-    def render(self, cube, *, radiance_scale: float, seed=0, noise: bool = True) -> np.ndarray:
-        """Raw frame (Hs, Ws) float32 in DN; ``seed`` (int or sequence) seeds the noise."""
+    def render(self, cube, *, radiance_scale: float, seed=0, noise: bool = True,
+               electrons=None) -> np.ndarray:
+        """Raw frame (Hs, Ws) float32 in DN; ``seed`` (int or sequence) seeds the noise.
+
+        ``electrons``, :meth:`electrons` of ``cube`` when the caller has them already (the
+        exposure of a video's first frame is taken from them), is scaled in place and used
+        instead of computing them again: the same frame."""
         from sim.sensor import digitise
 
-        ne = self.electrons(cube)
+        ne = self.electrons(cube) if electrons is None else electrons
         ne *= np.float32(radiance_scale)
         return digitise(ne, self.design, rng=np.random.default_rng(seed), noise=noise)
 

@@ -39,7 +39,7 @@ from recon.errors import InputError
 
 __all__ = ["MODELS", "DEFAULT_MODEL", "RUN_MODELS", "GAINS", "SMEAR_SAMPLES", "check_model",
            "holds", "model_of", "model_gains", "cube_grid", "grid_offset", "shifted_area_weights",
-           "truth_on_grid", "box_means"]
+           "truth_on_grid", "truth_mover", "box_means", "box_means_reference"]
 
 #: Every calibrated model a calibration can hold; the first (shifted) is in every calibration.
 MODELS = ("shifted", "smeared", "footprint")
@@ -146,7 +146,8 @@ def shifted_area_weights(n_in: int, n_out: int, offset: float, scale: float) -> 
     return w / scale
 
 
-def truth_on_grid(truth, design, cal, model: str | None = None, view_ids=None) -> np.ndarray:
+def truth_on_grid(truth, design, cal, model: str | None = None, view_ids=None, *,
+                  corners=None) -> np.ndarray:
     r"""The ground truth moved onto the grid of the calibrated ``model`` (:func:`cube_grid`) as
     the views ``view_ids`` (default: all the calibration's) see it, (H, W, L) float32.
 
@@ -172,6 +173,10 @@ def truth_on_grid(truth, design, cal, model: str | None = None, view_ids=None) -
 
     Pass the scene at its own resolution wherever it exists: the :math:`v \times v` mean has
     lost the detail within a pixel (a truth that flatters a smooth reconstruction).
+
+    ``corners``, :func:`kaleidospec.instrument.grid_on_scene`'s ``(x, y)`` for these
+    ``design``, ``cal`` and ``view_ids`` when already computed (:func:`truth_mover`: the
+    frames of a video share them).
     """
     t = np.asarray(truth, dtype=np.float32)
     (h, w), n = cube_grid(cal, model), cal.n_bands
@@ -183,12 +188,32 @@ def truth_on_grid(truth, design, cal, model: str | None = None, view_ids=None) -
         wx = shifted_area_weights(t.shape[1], w, 0.0, t.shape[1] / v).astype(np.float32)
         out = np.einsum("ij,jkl,mk->iml", wy, t, wx, optimize=True)
         return np.ascontiguousarray(out, dtype=np.float32)
-    from kaleidospec.instrument import grid_on_scene
+    if corners is None:
+        from kaleidospec.instrument import grid_on_scene
 
-    x, y = grid_on_scene(design, cal, view_ids)
+        corners = grid_on_scene(design, cal, view_ids)
+    x, y = corners
     sx, sy = t.shape[1] / v, t.shape[0] / v
     return box_means(t, 0.5 * (x[:-1, :-1] + x[1:, :-1]) * sx, 0.5 * (x[:-1, 1:] + x[1:, 1:]) * sx,
                      0.5 * (y[:-1, :-1] + y[:-1, 1:]) * sy, 0.5 * (y[1:, :-1] + y[1:, 1:]) * sy)
+
+
+def truth_mover(design, cal, model: str | None = None, view_ids=None):
+    """``move(truth)`` = :func:`truth_on_grid` ``(truth, design, cal, model, view_ids)``, with
+    where the grid lies on the scene (:func:`kaleidospec.instrument.grid_on_scene`, the
+    simulator's maps evaluated for every view) computed on the first call only: the same
+    cubes for every truth of one design, as a video's frames are."""
+    corners = []
+
+    def move(truth):
+        if not corners and model_of(cal, model) != "footprint":
+            from kaleidospec.instrument import grid_on_scene
+
+            corners.append(grid_on_scene(design, cal, view_ids))
+        return truth_on_grid(truth, design, cal, model, view_ids,
+                             corners=corners[0] if corners else None)
+
+    return move
 
 
 def box_means(image, x0, x1, y0, y1) -> np.ndarray:
@@ -218,6 +243,30 @@ def box_means(image, x0, x1, y0, y1) -> np.ndarray:
                (xa + width, ya, -1.0), (xa, ya, 1.0)]
     wp = ww + 2 * pad + 1
     area = (width * height).ravel()
+    from recon import kernels
+
+    if kernels.enabled():
+        # The same operations in the same order, compiled, without fast-math: the same bits
+        # as the NumPy loop below (box_means_reference; tests/kaleidospec/test_models.py).
+        cx = np.stack([c[0].ravel() for c in corners])
+        cy = np.stack([c[1].ravel() for c in corners])
+        signs = np.array([c[2] for c in corners])
+        out = np.empty((area.size, n), dtype=np.float32)
+        _box_means_kernel(f, pad, cx, cy, signs, area, out)
+        return out.reshape(x0.shape + (n,))
+    return _box_means_numpy(f, corners, pad, wp, area).reshape(x0.shape + (n,))
+
+
+def box_means_reference(image, x0, x1, y0, y1) -> np.ndarray:
+    """:func:`box_means` in NumPy alone (the reference its compiled path is tested against)."""
+    from recon import kernels
+
+    with kernels.numpy_only():
+        return box_means(image, x0, x1, y0, y1)
+
+
+def _box_means_numpy(f, corners, pad, wp, area):
+    hh, ww, n = f.shape
     out = np.empty((area.size, n), dtype=np.float32)
     for l in range(n):
         sat = np.zeros((hh + 2 * pad + 1, wp))
@@ -234,4 +283,47 @@ def box_means(image, x0, x1, y0, y1) -> np.ndarray:
             acc += sign * ((1 - ty) * ((1 - tx) * flat[i] + tx * flat[i + 1])
                            + ty * ((1 - tx) * flat[i + wp] + tx * flat[i + wp + 1]))
         out[:, l] = acc / area
-    return out.reshape(x0.shape + (n,))
+    return out
+
+
+def _box_means_kernel(f, pad, cx, cy, signs, area, out):
+    from numba import njit, prange
+
+    global _BOX_KERNEL
+    if _BOX_KERNEL is None:
+        @njit(cache=True, parallel=True)
+        def kernel(f, pad, cx, cy, signs, area, out):
+            hh, ww, n = f.shape
+            hp, wp = hh + 2 * pad + 1, ww + 2 * pad + 1
+            for l in prange(n):
+                # The edge-padded band, its cumulative sums down the rows then along them
+                # (NumPy's cumsum(0).cumsum(1): each a running sum in index order).
+                sat = np.zeros((hp, wp))
+                for r in range(1, hp):
+                    rr = min(max(r - 1 - pad, 0), hh - 1)
+                    for c in range(1, wp):
+                        sat[r, c] = np.float64(f[rr, min(max(c - 1 - pad, 0), ww - 1), l])
+                for r in range(2, hp):
+                    for c in range(1, wp):
+                        sat[r, c] = sat[r - 1, c] + sat[r, c]
+                for r in range(1, hp):
+                    for c in range(2, wp):
+                        sat[r, c] = sat[r, c - 1] + sat[r, c]
+                flat = sat.ravel()
+                for j in range(area.size):
+                    acc = 0.0
+                    for k in range(signs.size):
+                        ix = np.int64(np.floor(cx[k, j]))
+                        iy = np.int64(np.floor(cy[k, j]))
+                        tx = cx[k, j] - ix
+                        ty = cy[k, j] - iy
+                        i = iy * wp + ix
+                        acc = acc + signs[k] * ((1 - ty) * ((1 - tx) * flat[i] + tx * flat[i + 1])
+                                                + ty * ((1 - tx) * flat[i + wp]
+                                                        + tx * flat[i + wp + 1]))
+                    out[j, l] = np.float32(acc / area[j])
+        _BOX_KERNEL = kernel
+    _BOX_KERNEL(f, pad, cx, cy, signs, area, out)
+
+
+_BOX_KERNEL = None

@@ -401,15 +401,23 @@ class Reconstructor:
     def calibrated(cls, cal, n_views: int, **kw) -> "Reconstructor":
         """From a calibration: the first ``n_views`` views (centre, left, right, top, ...)."""
         from kaleidospec.instrument import design_of
-        from kaleidospec.models import grid_offset, truth_on_grid
+        from kaleidospec.models import grid_offset, truth_mover
 
         ids = first_views(n_views)
         _check_calibrated(cal, ids)
         # Gains folded into the masks: the cube comes out in the scene's radiance units.
         op = calibrated_operator(cal, ids)
+        # Where the grid lies on the scene, once per design (a video's frames share it).
+        movers = {}
+
+        def to_grid(t, meta):
+            d = design_of(meta)
+            if d.hash not in movers:
+                movers[d.hash] = truth_mover(d, cal, view_ids=ids)
+            return movers[d.hash](t)
+
         return cls(op, lambda frame, meta: frame_measurements(frame, meta, cal, ids),
-                   to_grid=lambda t, meta: truth_on_grid(t, design_of(meta), cal,
-                                                         view_ids=ids),
+                   to_grid=to_grid,
                    offset=lambda meta: grid_offset(design_of(meta), cal), kind="calibrated",
                    noise=cal.noise, **kw)
 

@@ -147,14 +147,18 @@ class VideoLayout:
 # ---------------------------------------------------------------------------------------------
 def render_sequence(anim, design, out_dir, *, radiance_scale: float, seed: int = 0,
                     noise: bool = True, renderer=None, progress: bool = True,
-                    scene: str = "") -> dict:
+                    scene: str = "", first=None) -> dict:
     """Render every frame of ``anim`` not rendered yet into ``out_dir`` (see the layout).
 
     Frame *i* gets the noise seed ``[seed, i]``; its sidecar records ``frame``, ``time_s``
     (shutter opening) and the scene.  The ground truth (the cube on the centre view's grid,
     :func:`kaleidospec.instrument.ground_truth`) is written first, then the raw image, then
     its sidecar.  ``renderer`` (a :class:`kaleidospec.instrument.FrameRenderer`) is made for
-    the design when not given.
+    the design when not given.  ``first``, a list ``[cube, electrons]`` of frame 0 when the
+    caller has computed them (:func:`run_video` sets the exposure from them), saves computing
+    them again (the same frame; the electrons are scaled in place); it is emptied when they
+    are taken, so that nothing holds frame 0's cube (0.34 GB at twice a `paper` view) while
+    the others render.
 
     Returns
     -------
@@ -185,10 +189,16 @@ def render_sequence(anim, design, out_dir, *, radiance_scale: float, seed: int =
     try:
         for i in todo:
             t0 = time.perf_counter()
-            cube = anim.frame(i)
+            ne = None
+            if i == 0 and first:
+                cube, ne = first
+                first.clear()
+            else:
+                cube = anim.frame(i)
             t1 = time.perf_counter()
             frame = renderer.render(cube, radiance_scale=radiance_scale, seed=[int(seed), i],
-                                    noise=noise)
+                                    noise=noise, electrons=ne)
+            del ne
             t2 = time.perf_counter()
             meta = renderer.metadata(radiance_scale=radiance_scale, seed=seed, noise=noise)
             meta.update(frame=i, time_s=anim.start_s(i), fps=anim.fps, scene=scene,
@@ -588,6 +598,7 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
     lay.make()
 
     renderer = instrument.FrameRenderer(d, anim.shape, anim.wavelengths, progress=progress)
+    first = None
     if old is not None:
         radiance_scale = float(old["radiance_scale"])
         segments = old["segments"]
@@ -596,7 +607,11 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
             raise InputError(f"{out} was split into segments of {segments[0][1] - segments[0][0]} "
                              "frames; resume it with the same --segment")
     else:
-        radiance_scale = renderer.exposure_for(anim.frame(0))
+        # Frame 0's electrons set the exposure, and render frame 0 (not computed twice).
+        cube0 = anim.frame(0)
+        first = [cube0, renderer.electrons(cube0)]
+        radiance_scale = renderer.exposure_for(cube0, electrons=first[1])
+        del cube0                    # render_sequence empties `first`: held nowhere after
         seg = segment_frames if segment_frames is not None else max(1, math.ceil(n / nworkers))
         segments = plan_segments(n, seg)
         write_json(lay.manifest, {"kind": "kaleidospec video", "config": config,
@@ -608,29 +623,30 @@ def run_video(scene: str, out_dir, *, design: str = "small", overrides: dict | N
     t0 = time.perf_counter()
     render_stats = render_sequence(anim, d, out, radiance_scale=radiance_scale, seed=seed,
                                    noise=noise, renderer=renderer, progress=progress,
-                                   scene=str(scene))
+                                   scene=str(scene), first=first)
+    del first
     render_stats["wall_seconds"] = time.perf_counter() - t0
 
     settings = {"operator": operator, "views": int(views), "solver": solver,
                 "iters": int(iters), "cold_iters": int(cold_iters), "tau": tau,
                 "prior": prior, "mu": float(temporal), "animation": anim.describe(),
                 "wavelengths": [float(x) for x in anim.wavelengths]}
+    cal = None
     if operator == "oracle":
         settings["design"] = d.to_dict()
     else:
-        calibrate(d, cache_dir=cache_dir, progress=progress)
+        cal = calibrate(d, cache_dir=cache_dir, progress=progress)
         settings["calibration"] = str(calibration_file(d, cache_dir))
     rec_stats = reconstruct_sequence(out, n, segments, settings, workers=nworkers,
                                      scheduler=scheduler, progress=progress)
     summary = write_summary(out, n)
     to_grid = None
     if operator == "calibrated":
-        from kaleidospec.models import truth_on_grid
+        from kaleidospec.models import truth_mover
         from kaleidospec.reconstruct import first_views
 
-        cal = calibrate(d, cache_dir=cache_dir, progress=False)  # cached: a load
-        ids = first_views(views)
-        to_grid = lambda t: truth_on_grid(t, d, cal, view_ids=ids)  # noqa: E731
+        # Where the grid lies on the scene is computed once for all the frames.
+        to_grid = truth_mover(d, cal, view_ids=first_views(views))
     video = write_video(out, n, anim.fps, anim.wavelengths, fmt=video_format,
                         truth_to_grid=to_grid)
     return {"frames": n, "render": render_stats, "reconstruct": rec_stats, "summary": summary,

@@ -43,7 +43,13 @@ _CMFS_NAME = "CIE 1931 2 Degree Standard Observer"
 # --------------------------------------------------------------------------------------------
 # validation
 # --------------------------------------------------------------------------------------------
-def _pair(est, truth, name: str) -> tuple[np.ndarray, np.ndarray]:
+#: Rows of a cube per block of the metrics' float64 work (:func:`psnr`, :func:`rmse`,
+#: :func:`psnr_bandwise`, :func:`sam`).
+_ROWS = 64
+
+
+def _checked(est, truth, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """The two cubes as arrays of their own dtype, checked (shapes, dtypes, finite)."""
     est = np.asarray(est)
     truth = np.asarray(truth)
     if est.ndim != 3 or truth.ndim != 3:
@@ -57,7 +63,19 @@ def _pair(est, truth, name: str) -> tuple[np.ndarray, np.ndarray]:
             raise InputError(f"{name}: {what} has unsupported dtype {a.dtype}")
         if not np.all(np.isfinite(a)):
             raise InputError(f"{name}: {what} contains NaN or Inf")
-    return est.astype(np.float64, copy=False), truth.astype(np.float64, copy=False)
+    return est, truth
+
+
+def _rows64(a: np.ndarray, rows: slice) -> np.ndarray:
+    """Rows of a cube in float64 (a float64 copy of the whole cube would be 0.17 GB on
+    `paper`): every element the value the whole cube's conversion gives it."""
+    return a[rows].astype(np.float64)
+
+
+def _like64(a: np.ndarray) -> np.ndarray:
+    """An empty float64 array laid out in memory as ``a.astype(np.float64)`` would be, so
+    that a mean over it sums in the same order as over that conversion's results."""
+    return np.empty_like(a, dtype=np.float64)
 
 
 def _global_scale(truth: np.ndarray, name: str) -> float:
@@ -87,9 +105,17 @@ def psnr(est, truth) -> float:
 
     Returns ``inf`` for identical cubes.
     """
-    e, t = _pair(est, truth, "psnr")
+    e, t = _checked(est, truth, "psnr")
     s = _global_scale(t, "psnr")
-    mse = float(np.mean(((e - t) / s) ** 2))
+    # ((e - t) / s)**2 in float64 a block of rows at a time into one array: element by
+    # element the same operations, summed in the same order, without float64 copies of both.
+    d = _like64(e)
+    for a in range(0, e.shape[0], _ROWS):
+        rows = slice(a, a + _ROWS)
+        b = np.subtract(_rows64(e, rows), _rows64(t, rows))
+        b /= s
+        np.square(b, out=d[rows])
+    mse = float(np.mean(d))
     return float(_psnr_from_mse(mse))
 
 
@@ -118,20 +144,32 @@ def psnr_bandwise(est, truth, *, normalise: str = "reference", return_bands: boo
     A constant reference band (:math:`b_l = a_l`) is normalised by a range of 1 (offset only).
     Identical bands give ``inf``, and so does the mean if any band is identical.
     """
-    e, t = _pair(est, truth, "psnr_bandwise")
+    e, t = _checked(est, truth, "psnr_bandwise")
     if normalise not in ("reference", "each"):
         raise InputError(f"psnr_bandwise: normalise must be 'reference' or 'each', not {normalise!r}")
-    lo = t.min(axis=(0, 1))
-    rng = t.max(axis=(0, 1)) - lo
+    # Extremes are exact in any precision; their differences are taken in float64.
+    lo = t.min(axis=(0, 1)).astype(np.float64)
+    rng = t.max(axis=(0, 1)).astype(np.float64) - lo
     rng = np.where(rng > 0, rng, 1.0)
-    tn = (t - lo) / rng
     if normalise == "reference":
-        en = (e - lo) / rng
+        elo, erng = lo, rng
     else:
-        elo = e.min(axis=(0, 1))
-        erng = e.max(axis=(0, 1)) - elo
-        en = (e - elo) / np.where(erng > 0, erng, 1.0)
-    mse = np.mean((en - tn) ** 2, axis=(0, 1))
+        elo = e.min(axis=(0, 1)).astype(np.float64)
+        erng = e.max(axis=(0, 1)).astype(np.float64) - elo
+        erng = np.where(erng > 0, erng, 1.0)
+    # ((e - elo) / erng - (t - lo) / rng)**2 a block of rows at a time, into one array laid
+    # out as the cubes are (the mean then sums in the same order): the same numbers as the
+    # whole-cube expression, one cube-sized temporary where it would hold five.
+    sq = _like64(e)
+    for a in range(0, e.shape[0], _ROWS):
+        rows = slice(a, a + _ROWS)
+        en = np.subtract(_rows64(e, rows), elo)
+        en /= erng
+        tn = np.subtract(_rows64(t, rows), lo)
+        tn /= rng
+        en -= tn
+        np.square(en, out=sq[rows])
+    mse = np.mean(sq, axis=(0, 1))
     bands = _psnr_from_mse(mse)
     mean = float(np.mean(bands))
     return (mean, bands) if return_bands else mean
@@ -154,17 +192,16 @@ def ssim(est, truth, *, return_bands: bool = False):
     """
     from skimage.metrics import structural_similarity
 
-    e, t = _pair(est, truth, "ssim")
+    e, t = _checked(est, truth, "ssim")
     if min(t.shape[:2]) < 11:
         raise InputError(f"ssim: images must be at least 11x11 pixels, got {t.shape[:2]}")
     s = _global_scale(t, "ssim")
-    e = e / s
-    t = t / s
+    # Band by band in float64 (the values of the whole cubes' conversion, divided by s).
     bands = np.array(
         [
             structural_similarity(
-                t[:, :, l],
-                e[:, :, l],
+                t[:, :, l].astype(np.float64) / s,
+                e[:, :, l].astype(np.float64) / s,
                 data_range=1.0,
                 gaussian_weights=True,
                 sigma=1.5,
@@ -188,17 +225,24 @@ def sam(est, truth, *, return_map: bool = False):
     Pixels where either spectrum is all zero have no defined angle: they are left out of the mean
     (and are NaN in the map).  If no pixel is left, the result is NaN.
     """
-    e, t = _pair(est, truth, "sam")
-    ne = np.sqrt(np.einsum("ijk,ijk->ij", e, e))
-    nt = np.sqrt(np.einsum("ijk,ijk->ij", t, t))
-    valid = (ne > 0) & (nt > 0)
+    e, t = _checked(est, truth, "sam")
     # theta = 2 arcsin(|e/|e| - t/|t|| / 2): the same angle as arccos of the normalised dot
-    # product, but accurate near 0 where arccos loses half the digits.
-    ue = e[valid] / ne[valid][:, None]
-    ut = t[valid] / nt[valid][:, None]
-    chord = np.linalg.norm(ue - ut, axis=-1)
-    ang = np.full(ne.shape, np.nan)
-    ang[valid] = np.degrees(2.0 * np.arcsin(np.clip(chord / 2.0, 0.0, 1.0)))
+    # product, but accurate near 0 where arccos loses half the digits.  Each pixel's norms and
+    # angle are its own, so they are taken in float64 a block of rows at a time (float64
+    # copies of both cubes and their unit spectra would be 0.8 GB on `paper`).
+    ang = np.full(e.shape[:2], np.nan)
+    valid = np.zeros(e.shape[:2], bool)
+    for a in range(0, e.shape[0], _ROWS):
+        rows = slice(a, a + _ROWS)
+        eb, tb = _rows64(e, rows), _rows64(t, rows)
+        ne = np.sqrt(np.einsum("ijk,ijk->ij", eb, eb))
+        nt = np.sqrt(np.einsum("ijk,ijk->ij", tb, tb))
+        v = valid[rows]
+        np.logical_and(ne > 0, nt > 0, out=v)
+        ue = eb[v] / ne[v][:, None]
+        ue -= tb[v] / nt[v][:, None]
+        chord = np.linalg.norm(ue, axis=-1)
+        ang[rows][v] = np.degrees(2.0 * np.arcsin(np.clip(chord / 2.0, 0.0, 1.0)))
     mean = float(np.mean(ang[valid])) if np.any(valid) else float("nan")
     return (mean, ang) if return_map else mean
 
@@ -209,11 +253,16 @@ def rmse(est, truth, *, scale: bool = False) -> float:
     With ``scale=True`` both cubes are first divided by the reference maximum (as for
     :func:`psnr`), so that ``psnr == -20 log10(rmse(scale=True))``.
     """
-    e, t = _pair(est, truth, "rmse")
-    d = e - t
-    if scale:
-        d = d / _global_scale(t, "rmse")
-    return float(np.sqrt(np.mean(d**2)))
+    e, t = _checked(est, truth, "rmse")
+    s = _global_scale(t, "rmse") if scale else None
+    d = _like64(e)
+    for a in range(0, e.shape[0], _ROWS):
+        rows = slice(a, a + _ROWS)
+        b = np.subtract(_rows64(e, rows), _rows64(t, rows))
+        if scale:
+            b /= s
+        np.square(b, out=d[rows])
+    return float(np.sqrt(np.mean(d)))
 
 
 # --------------------------------------------------------------------------------------------

@@ -180,9 +180,11 @@ class RotatingColorwheel(Animation):
                              f"{', '.join(sorted(allowed))}")
         self.wheel = dict(wheel)
         self.sectors = int(self.wheel.get("sectors", 6))
-        # Build one frame now so that bad wheel parameters fail before any work starts.
+        # Build a small wheel now so that bad wheel parameters fail before any work starts
+        # (their checks do not depend on the size; a full frame at twice a `paper` view is
+        # seconds of a video's start).
         self._colorwheel = colorwheel
-        self.cube_at(0.0)
+        colorwheel((8, 8), self.wavelengths, angle_deg=self.angle_deg(0.0), **self.wheel)
 
     def angle_deg(self, t: float) -> float:
         """θ(t) in degrees."""

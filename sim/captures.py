@@ -227,13 +227,18 @@ def capture(design, cube, wavelengths, *, wavelength_nm=None, repeats: int = 4, 
 
 
 def render_captures(design, *, repeats: int = 4, seed: int = 1000, progress: bool = False,
-                    keep_transport: bool = True) -> Captures:
+                    keep_transport: bool = True, on_line=None) -> Captures:
     """Render every calibration capture of ``design`` (see the module docstring).
 
     The targets are cubes on the centre view's grid (``view_size_px`` square).  ``seed`` seeds
     the sensor noise (each capture its own seeds).  The band-pass captures (whites, ColorChecker)
     come first; with ``keep_transport=False`` their transport is dropped from memory before the
     monochromatic ones (0.4 GB for the paper design, while the white and line stacks fill).
+
+    ``on_line``, a callable ``on_line(l, frame, whites)``, receives each line capture (band
+    ``l``) as it is read out, with the whole (L, Hs, Ws) white stack (rendered before the
+    lines), instead of its being kept: ``Captures.line`` is then None, and the line stack
+    (0.95 GB on the paper design) is never held.  The captures themselves are the same.
     """
     from scenes.calibration import line, white
     from scenes.colorchecker import colorchecker, patch_boxes
@@ -241,17 +246,37 @@ def render_captures(design, *, repeats: int = 4, seed: int = 1000, progress: boo
     wl = design.wavelengths
     v = design.view_size_px
     shape = (v, v)
-    white_cube = white(shape, wl)
-    line_cube = line(shape, wl, width=1)
-    checker_cube, pattern = checker_target(design, wl)
-    cc_cube = colorchecker(shape, wl, illuminant="D65")
+    pattern = checker_layout(design)["pattern_size"]
+    b = patch_boxes(shape)                         # row0, col0, row1, col1
 
     steps = [("white", l) for l in range(wl.size)] + [("line", l) for l in range(wl.size)] + \
             [("checker", None), ("checker_white", None), ("colorchecker", None)]
     # Each capture keeps the noise seed of its place in `steps`; the band-pass ones (one
-    # transport for all) run first, so that transport can go before the monochromatic ones.
-    band_pass = [i for i, (name, _) in enumerate(steps) if name in ("white", "colorchecker")]
+    # transport for all) run first, so that transport can go before the monochromatic ones,
+    # and the ColorChecker first among them: its every band lit makes the largest blur
+    # buffers (0.4 GB more on `paper`), which then come and go before the white stack fills.
+    band_pass = [i for i, (name, _) in enumerate(steps) if name == "colorchecker"] + \
+        [i for i, (name, _) in enumerate(steps) if name == "white"]
     order = band_pass + [i for i in range(len(steps)) if i not in band_pass]
+    # Each target cube (84 MB on `paper`) is made before its first capture and dropped after
+    # its last, not all held through the captures (the same cubes).
+    makers = {"white": lambda: white(shape, wl), "line": lambda: line(shape, wl, width=1),
+              "checker": lambda: checker_target(design, wl)[0],
+              "colorchecker": lambda: colorchecker(shape, wl, illuminant="D65"),
+              "band": lambda: np.zeros_like(target("white")),
+              "checker_white": lambda: white(shape, wl)}
+    uses = {"white": ("white",), "line": ("line",), "checker": ("checker",),
+            "colorchecker": ("colorchecker",), "band": ("white",),
+            "checker_white": ("checker_white",)}
+    last_use = {t: max(p for p, i in enumerate(order) if steps[i][0] in names)
+                for t, names in uses.items()}
+    made: dict = {}
+
+    def target(t):
+        if t not in made:
+            made[t] = makers[t]()
+        return made[t]
+
     bar = None
     if progress:
         from recon.progress import progress_bar
@@ -261,12 +286,12 @@ def render_captures(design, *, repeats: int = 4, seed: int = 1000, progress: boo
 
     # The band stacks are filled in place: a list of frames and its np.stack would hold both
     # (1.9 GB more at the peak for the paper design's 26 whites and 26 lines).
-    whites = lines = None
+    whites = lines = radiance = None
     meta: dict = {"white": [], "line": []}
     out = {}
     before = checker_known = transport.held()
     try:
-        for i in order:
+        for pos, i in enumerate(order):
             name, l = steps[i]
             s = seed + 101 * i
             if not keep_transport and i == order[len(band_pass)]:
@@ -279,24 +304,30 @@ def render_captures(design, *, repeats: int = 4, seed: int = 1000, progress: boo
                 # width), not a line at the band centre: the mask image then carries the
                 # dispersion smear inside the band exactly as a scene frame does (measured: +4 dB
                 # for one view on the ColorChecker of the small design).
-                band = np.zeros_like(white_cube)
-                band[:, :, l] = white_cube[:, :, l]
+                # One target buffer for every band, its band lit in turn.
+                band = target("band")
+                band[:, :, l] = target("white")[:, :, l]
                 f, m = capture(design, band, wl, repeats=repeats, seed=s, target="white")
+                band[:, :, l] = 0.0
+                del band
                 m["band_nm"] = float(wl[l])
                 if whites is None:
                     whites = np.empty((wl.size,) + f.shape, np.float32)
                 whites[l] = f
                 meta["white"].append(m)
             elif name == "line":
-                f, m = capture(design, line_cube, wl, wavelength_nm=wl[l], repeats=repeats,
+                f, m = capture(design, target("line"), wl, wavelength_nm=wl[l], repeats=repeats,
                                seed=s, target="line")
                 m["column"] = v // 2       # the line's place on the target (its datasheet)
-                if lines is None:
-                    lines = np.empty((wl.size,) + f.shape, np.float32)
-                lines[l] = f
                 meta["line"].append(m)
+                if on_line is not None:
+                    on_line(l, f, whites)
+                else:
+                    if lines is None:
+                        lines = np.empty((wl.size,) + f.shape, np.float32)
+                    lines[l] = f
             elif name == "checker":
-                f, m = capture(design, checker_cube, wl, wavelength_nm=CHECKER_NM,
+                f, m = capture(design, target("checker"), wl, wavelength_nm=CHECKER_NM,
                                repeats=repeats, seed=s, target="checkerboard")
                 # What a lab knows from its target's datasheet: the board's layout.
                 lay = checker_layout(design)
@@ -304,7 +335,7 @@ def render_captures(design, *, repeats: int = 4, seed: int = 1000, progress: boo
                 m["squares"] = list(lay["squares"])
                 out["checker"], meta["checker"] = f, m
             elif name == "checker_white":
-                f, m = capture(design, white_cube, wl, wavelength_nm=CHECKER_NM,
+                f, m = capture(design, target("checker_white"), wl, wavelength_nm=CHECKER_NM,
                                repeats=repeats, seed=s, target="white")
                 out["checker_white"], meta["checker_white"] = f, m
             else:
@@ -313,11 +344,18 @@ def render_captures(design, *, repeats: int = 4, seed: int = 1000, progress: boo
                 # variance of one (its gain's spread 0.92 % → 0.64 % on `small`, 20 seeds).
                 pairs = repeats // 2
                 singles = np.empty((2 * pairs,) + sensor, np.float32) if pairs else None
+                cc_cube = target("colorchecker")
+                # The patches' reference radiance: the chart's value at each patch centre.
+                radiance = np.stack([cc_cube[r0 + (r1 - r0) // 2, c0 + (c1 - c0) // 2]
+                                     for r0, c0, r1, c1 in b]).astype(np.float64)
                 f, m = capture(design, cc_cube, wl, repeats=repeats, seed=s,
                                target="colorchecker", singles=singles)
+                del cc_cube
                 out["colorchecker"], meta["colorchecker"] = f, m
                 out["noise_frames"] = singles
             del f
+            for t in [t for t in made if last_use[t] == pos]:
+                del made[t]
             if name in ("line", "checker_white"):
                 # A monochromatic capture's transport (one wavelength, its throughput images
                 # computed) serves that capture only (the checkerboard's also its white's),
@@ -330,10 +368,7 @@ def render_captures(design, *, repeats: int = 4, seed: int = 1000, progress: boo
         if bar is not None:
             bar.close()
 
-    b = patch_boxes(shape)                         # row0, col0, row1, col1
     boxes = np.stack([b[:, 0], b[:, 1], b[:, 2] - b[:, 0], b[:, 3] - b[:, 1]], axis=1)
-    radiance = np.stack([cc_cube[r0 + (r1 - r0) // 2, c0 + (c1 - c0) // 2]
-                         for r0, c0, r1, c1 in b]).astype(np.float64)
     return Captures(design_hash=design.hash, wavelengths=wl.copy(),
                     white=whites, line=lines, checker=out["checker"],
                     checker_white=out["checker_white"], colorchecker=out["colorchecker"],

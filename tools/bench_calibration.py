@@ -14,8 +14,14 @@ time and of the process's CPU time, all threads), with a check that both give th
    (``band_forward``); it needs the design's calibration in the cache (``kaleidospec
    calibrate``) and a PSF (designs whose masks are deconvolved).
 
+With ``--whole`` it also calibrates the design from an empty temporary cache in a fresh
+process (what ``kaleidospec run`` does the first time) and prints its wall and CPU time, its
+peak resident memory (``ru_maxrss``) and each step's seconds and the peak after it: the
+captures (``render_captures``, the line captures reduced to their profiles as they come), the
+mask images' deconvolution, the homographies, the sensor's noise, the flat-field gains.
+
 Usage: python3 tools/bench_calibration.py [--design paper] [--repeat 3] [--repeats 4]
-                                          [--json FILE]
+                                          [--whole] [--json FILE]
 """
 
 from __future__ import annotations
@@ -98,13 +104,92 @@ def bench_flat_gains(cal, repeat):
                      lambda a, b: all(np.array_equal(x, y) for x, y in zip(a, b)))
 
 
+#: The calibration's steps timed by ``--whole``: (module, function, label).
+STEPS = [("kaleidospec.instrument", "render_captures", "captures"),
+         ("recon.calibration.mask", "deconvolve_views", "mask images (deconvolution)"),
+         ("recon.calibration", "view_homographies", "homographies and fields"),
+         ("kaleidospec.calibrate", "sensor_noise", "sensor noise"),
+         ("kaleidospec.calibrate", "model_flat_gains", "flat-field gains")]
+
+
+def _peak_kib() -> int:
+    import resource
+
+    return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
+
+
+def _child(design_name: str, repeats: int) -> None:
+    """In a fresh process: calibrate ``design_name`` (an empty ``KALEIDOSPEC_CACHE``) with
+    every step of :data:`STEPS` timed; one JSON line on stdout."""
+    import functools
+    import importlib
+    import json
+    import resource
+
+    from kaleidospec.calibrate import calibrate
+    from sim.optics.design import get_design
+
+    steps = []
+    for mod, name, label in STEPS:
+        m = importlib.import_module(mod)
+        fn = getattr(m, name)
+
+        def wrapper(*a, _fn=fn, _label=label, **kw):
+            t0 = time.perf_counter()
+            out = _fn(*a, **kw)
+            steps.append({"step": _label, "seconds": time.perf_counter() - t0,
+                          "peak_kib_after": _peak_kib()})
+            return out
+
+        setattr(m, name, functools.wraps(fn)(wrapper))
+    w = time.perf_counter()
+    calibrate(get_design(design_name), progress=False, repeats=repeats)
+    wall = time.perf_counter() - w
+    ru = resource.getrusage(resource.RUSAGE_SELF)
+    print(json.dumps({"wall_s": wall, "user_s": ru.ru_utime, "system_s": ru.ru_stime,
+                      "peak_kib": int(ru.ru_maxrss), "steps": steps}))
+
+
+def bench_whole(design_name: str, repeats: int) -> dict:
+    """The whole calibration from an empty temporary cache in a fresh process
+    (:func:`_child`); prints and returns its figures."""
+    import json
+    import subprocess
+    import sys
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="kaleidospec-cal-") as cache:
+        env = dict(os.environ, KALEIDOSPEC_CACHE=cache)
+        load0 = os.getloadavg()[0]
+        done = subprocess.run([sys.executable, __file__, "--child", design_name,
+                               "--repeats", str(repeats)], env=env, check=True,
+                              capture_output=True, text=True)
+        load1 = os.getloadavg()[0]
+    got = json.loads(done.stdout.strip().splitlines()[-1])
+    got["load"] = [load0, load1]
+    print(f"whole calibration, empty cache, fresh process: wall {got['wall_s']:.1f} s, CPU "
+          f"{got['user_s'] + got['system_s']:.1f} s (user {got['user_s']:.1f} + system "
+          f"{got['system_s']:.1f}), peak RSS {got['peak_kib'] / 1e6:.2f} GB "
+          f"({got['peak_kib']} KiB), load {load0:.2f} -> {load1:.2f}")
+    for st in got["steps"]:
+        print(f"  {st['step']:30s} {st['seconds']:7.1f} s   peak after "
+              f"{st['peak_kib_after'] / 1e6:5.2f} GB")
+    return got
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--design", default="paper")
     p.add_argument("--repeat", type=int, default=3, help="alternations (medians kept)")
     p.add_argument("--repeats", type=int, default=4, help="noisy frames of a capture")
+    p.add_argument("--whole", action="store_true",
+                   help="also the whole calibration from an empty cache, in a fresh process")
+    p.add_argument("--child", help=argparse.SUPPRESS)
     p.add_argument("--json", type=Path)
     args = p.parse_args(argv)
+    if args.child:
+        _child(args.child, args.repeats)
+        return
 
     from kaleidospec.instrument import cache_dir
     from recon import kernels
@@ -122,6 +207,8 @@ def main(argv=None):
               "flat-field step is skipped")
     elif cal.psf is not None:
         report["flat_gains"] = bench_flat_gains(cal, args.repeat)
+    if args.whole:
+        report["whole"] = bench_whole(args.design, args.repeats)
     report["loadavg_end"] = os.getloadavg()
     print(f"load {report['loadavg_start'][0]:.2f} -> {report['loadavg_end'][0]:.2f}")
     if args.json:

@@ -64,12 +64,15 @@ def main():
 
     import kaleidospec.instrument as inst
     import recon.calibration as rc
+    import recon.calibration.dispersion as rcd
+    import recon.calibration.mask as rcm
     from kaleidospec.calibrate import calibrate
     from kaleidospec.reconstruct import reconstruct_views
     from kaleidospec.run import parse_views
 
     for mod, name in [(inst, "render_captures"), (rc, "find_view_boxes"),
-                      (rc, "line_centroids"), (rc, "mask_images"), (rc, "view_homographies"),
+                      (rcd, "profile_centroids"), (rcm, "deconvolve_views"),
+                      (rc, "view_homographies"),
                       (rc, "build_calibration")]:
         timed(mod, name)
     report("start", 0.0)

@@ -47,14 +47,48 @@ def line_centroids(line_captures, view_boxes, dark=None, half_width: int = 6) ->
     ------
     InputError
         Bad shapes, or a view/band where no line is visible.
+
+    Notes
+    -----
+    :func:`line_profiles` then :func:`profile_centroids`; a caller that gets the captures
+    one at a time takes each one's profiles as it comes (the same numbers) and never holds the
+    stack.
+    """
+    return profile_centroids(line_profiles(line_captures, view_boxes, dark), half_width)
+
+
+def line_profiles(line_captures, view_boxes, dark=None) -> np.ndarray:
+    r"""Every view's column profile of every line capture, :math:`p_{k,l}(x) = \sum_y
+    I_{k,l}(y, x)` (float64 sums of the float32 crops, row after row), (K, L, w) float64.
+
+    ``line_captures`` (L, H, W) or (L, N, H, W) as in :func:`line_centroids`; a band's
+    profiles depend on its capture alone, so the captures can be given one at a time
+    (``captures[None]``, L = 1) and the profiles stacked along the band axis.
+    """
+    views = view_stack(line_captures, view_boxes, dark, "line captures")   # (K, L, h, w)
+    return views.sum(axis=2, dtype=np.float64)
+
+
+def profile_centroids(profiles, half_width: int = 6) -> np.ndarray:
+    r"""The line's sub-pixel column in every view and band from its column profiles
+    (:func:`line_profiles`, (K, L, w)): the background (median) removed, the centroid of
+    :math:`p_+` over ``peak ± half_width`` columns (module notes), (K, L) float64.
+
+    Raises
+    ------
+    InputError
+        A view/band where no line stands 5 robust standard deviations above the profile's
+        background.
     """
     if half_width < 1:
         raise InputError(f"half_width must be >= 1, got {half_width}")
-    views = view_stack(line_captures, view_boxes, dark, "line captures")   # (K, L, h, w)
-    n_views, n_bands = views.shape[:2]
+    profiles = np.asarray(profiles, dtype=np.float64)
+    if profiles.ndim != 3:
+        raise InputError(f"line profiles must be (K, L, w), got shape {profiles.shape}")
+    n_views, n_bands = profiles.shape[:2]
     out = np.empty((n_views, n_bands), dtype=np.float64)
     for k in range(n_views):
-        prof = views[k].sum(axis=1, dtype=np.float64)        # (L, w)
+        prof = profiles[k]                                    # (L, w)
         prof = prof - np.median(prof, axis=1, keepdims=True)
         w = prof.shape[1]
         x = np.arange(w, dtype=np.float64)

@@ -292,10 +292,29 @@ def white_views(white_captures, view_boxes, dark=None, airy_radius=None,
     filter with ``balance``), ``"wiener"`` (:func:`wiener_deconvolve`, ``balance``) or
     ``"richardson-lucy"`` (:func:`deconvolve`, ``rl_iterations``), with a progress bar if
     ``progress``."""
+    _check_deconvolution(deconvolution)
+    views = view_stack(white_captures, view_boxes, dark, "white captures")
+    return deconvolve_views(views, airy_radius, rl_iterations, progress, deconvolution,
+                            balance, tv_weight)
+
+
+def _check_deconvolution(deconvolution: str) -> None:
     if deconvolution not in DECONVOLUTIONS:
         raise InputError(f"unknown deconvolution {deconvolution!r}; known: "
                          f"{', '.join(DECONVOLUTIONS)}")
-    views = view_stack(white_captures, view_boxes, dark, "white captures")
+
+
+def deconvolve_views(views: np.ndarray, airy_radius=None, rl_iterations: int = 30,
+                     progress: bool = False, deconvolution: str = "tv",
+                     balance: float = WIENER_BALANCE, tv_weight: float = TV_WEIGHT) -> np.ndarray:
+    """:func:`white_views` of crops already taken (:func:`view_stack`'s (K, L, h, w) float32),
+    in place: negative values set to zero, then each crop deconvolved as there.  A caller
+    that holds the crops anyway (the flat-field gains read them) makes its mask images from
+    a copy of them, without the full white frames."""
+    _check_deconvolution(deconvolution)
+    if views.dtype != np.float32 or views.ndim != 4:
+        raise InputError(f"view crops must be (K, L, h, w) float32, got {views.dtype} "
+                         f"{views.shape}")
     np.maximum(views, 0.0, out=views)
     if airy_radius is not None:
         radii = np.broadcast_to(np.asarray(airy_radius, dtype=np.float64), (views.shape[1],))

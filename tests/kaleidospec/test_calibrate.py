@@ -128,15 +128,30 @@ def test_view_leads_model_the_light_before_the_offsets(setup):
 
 
 def test_given_captures_are_left_as_they_were(setup):
-    """The calibration drops the line frames it rendered itself once their centroids are
-    measured (0.9 GB on `paper`), never those a caller hands it; either way it is the same."""
+    """The calibration never holds the line frames it renders itself (each is reduced to its
+    column profiles as it is read out) and drops its own full white frames once cropped (0.95
+    GB each on `paper`), never the frames a caller hands it; either way it is the same to the
+    bit (the masks, offsets, boxes, homographies and gains)."""
     from kaleidospec.calibrate import calibrate_from_captures
     from kaleidospec.instrument import render_captures
 
     d, cal = setup[0], setup[1]
     caps = render_captures(d)
-    line = caps.line.copy()
+    line, white = caps.line.copy(), caps.white.copy()
     given = calibrate_from_captures(d, captures=caps)
     np.testing.assert_array_equal(caps.line, line)
-    np.testing.assert_array_equal(given.mask_images, cal.mask_images)
-    np.testing.assert_array_equal(given.offsets, cal.offsets)
+    np.testing.assert_array_equal(caps.white, white)
+    for name in ("mask_images", "offsets", "view_boxes", "homographies", "gains"):
+        np.testing.assert_array_equal(getattr(given, name), getattr(cal, name), err_msg=name)
+
+
+def test_floor_chrome_in_place_is_the_copy():
+    from kaleidospec.calibrate import MASK_FLOOR, floor_chrome
+
+    m = np.random.default_rng(0).random((2, 3, 5, 7), dtype=np.float32)
+    m[0, 0, 0, :3] = [np.nan, MASK_FLOOR, np.float32(MASK_FLOOR) - np.float32(1e-6)]
+    copy = floor_chrome(m)
+    assert np.sum(copy == 0) > 0 and copy[0, 0, 0, 1] == np.float32(MASK_FLOOR)
+    out = floor_chrome(m, out=m)
+    assert out is m
+    np.testing.assert_array_equal(m, copy)

@@ -289,6 +289,37 @@ def test_render_sequence_resumes(tiny, tmp_path):
     assert not [p for p in out.rglob(".*")]
 
 
+def test_first_frame_from_the_exposures_electrons_is_the_same(tiny, tmp_path):
+    """``run_video`` sets the exposure from frame 0's electrons and hands them to
+    ``render_sequence`` (``first``), which renders frame 0 from them: the same raw frame as
+    computing them again, and every other frame as before."""
+    from kaleidospec.instrument import FrameRenderer
+    from kaleidospec.video import VideoLayout, render_sequence
+    from recon.io.raw import read_raw
+    from scenes.animated import RotatingColorwheel
+    from sim.frame import exposure
+
+    v = tiny.view_size_px
+    anim = RotatingColorwheel((v, v), tiny.wavelengths, n_frames=2, speed_deg_s=45)
+    r = FrameRenderer(tiny, (v, v), tiny.wavelengths)
+    s = r.exposure_for(anim.frame(0))
+    cube0 = anim.frame(0)
+    ne0 = r.electrons(cube0)
+    assert exposure(ne0, tiny) == s == r.exposure_for(cube0, electrons=ne0)
+    a, b = tmp_path / "a", tmp_path / "b"
+    render_sequence(anim, tiny, a, radiance_scale=s, renderer=r, progress=False)
+    first = [cube0, ne0]
+    render_sequence(anim, tiny, b, radiance_scale=s, renderer=r, progress=False, first=first)
+    assert first == []                   # taken: the caller holds frame 0's cube no longer
+    for i in range(2):
+        fa, ma = read_raw(VideoLayout(a).raw(i))
+        fb, mb = read_raw(VideoLayout(b).raw(i))
+        np.testing.assert_array_equal(fa, fb)
+        assert ma == mb
+        np.testing.assert_array_equal(read_cube(VideoLayout(a).truth(i))[0],
+                                      read_cube(VideoLayout(b).truth(i))[0])
+
+
 # ------------------------------------------------------------------ bad input
 def _cli(argv, capsys):
     from kaleidospec.cli import main

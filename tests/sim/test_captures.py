@@ -131,7 +131,8 @@ def test_render_captures_is_complete_and_tagged():
 
 def test_captures_without_keeping_the_transport_are_the_same_captures():
     """``keep_transport=False`` drops the band-pass transport before the monochromatic
-    captures (memory) and changes no capture: each keeps its own noise seed."""
+    captures (memory) and changes no capture: each keeps its own noise seed; the lines handed
+    one at a time to ``on_line`` (not kept) are the same frames too."""
     from kaleidospec.instrument import release_transports
     from sim.transport import exact as transport
 
@@ -139,7 +140,18 @@ def test_captures_without_keeping_the_transport_are_the_same_captures():
     kept = render_captures(d, repeats=1)
     release_transports("captures")
     before = set(transport._MEMO)
-    lean = render_captures(d, repeats=1, keep_transport=False)
+    handed = {}
+
+    def on_line(l, frame, whites):
+        # The whites are complete when the lines come.
+        np.testing.assert_array_equal(whites, kept.white)
+        handed[l] = frame.copy()
+
+    lean = render_captures(d, repeats=1, keep_transport=False, on_line=on_line)
     assert set(transport._MEMO) - before == set()
-    for name in ("white", "line", "checker", "checker_white", "colorchecker"):
+    for name in ("white", "checker", "checker_white", "colorchecker"):
         np.testing.assert_array_equal(getattr(lean, name), getattr(kept, name), err_msg=name)
+    # The lines handed to ``on_line`` one at a time, not kept, are the stack's frames.
+    assert lean.line is None and sorted(handed) == list(range(d.n_bands))
+    np.testing.assert_array_equal(np.stack([handed[l] for l in range(d.n_bands)]), kept.line)
+    assert lean.meta["line"] == kept.meta["line"]

@@ -4,7 +4,9 @@ import numpy as np
 import pytest
 from scipy.special import erf
 
-from recon.calibration.dispersion import fit_dispersion, line_centroids, normalise_offsets
+from recon.calibration.dispersion import (fit_dispersion, line_centroids, line_profiles,
+                                          normalise_offsets, profile_centroids)
+from recon.calibration.mask import view_stack
 from recon.errors import InputError
 
 B = (1.03961212, 0.231792344, 1.01046945)
@@ -60,6 +62,25 @@ def test_centroids_and_fit_recover_phi():
     np.testing.assert_allclose(fit(fine), truth, atol=0.1)
     np.testing.assert_allclose(fit([550.0]), 0.0, atol=1e-12)
     assert np.all(fit.rms_px < 0.1)
+
+
+def test_profiles_one_capture_at_a_time_are_the_stacks():
+    """The calibration takes each line capture's profiles as it is read out (the stack is never
+    held): band by band they are the whole stack's to the bit, and so are the centroids; the
+    profiles are the rows' float64 sums of the view crops."""
+    rng = np.random.default_rng(3)
+    lam = np.arange(450.0, 701.0, 25.0)
+    phi = np.stack([true_phi(lam, 20.0), 1.02 * true_phi(lam, 20.0)])
+    caps, boxes = _line_captures(rng, lam, phi, [40.3, 50.75])
+    whole = line_profiles(caps, boxes)
+    one_by_one = np.stack([line_profiles(c[None], boxes)[:, 0] for c in caps], axis=1)
+    np.testing.assert_array_equal(one_by_one, whole)
+    views = view_stack(caps, boxes)
+    for k in range(len(boxes)):
+        np.testing.assert_array_equal(whole[k], views[k].sum(axis=1, dtype=np.float64))
+    np.testing.assert_array_equal(profile_centroids(one_by_one), line_centroids(caps, boxes))
+    with pytest.raises(InputError, match=r"\(K, L, w\)"):
+        profile_centroids(whole[0])
 
 
 def test_sellmeier_is_well_fitted_in_inverse_lambda_squared():

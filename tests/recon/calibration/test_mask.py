@@ -271,3 +271,27 @@ def test_view_stack_is_float32_and_the_deconvolution_shows_progress(capsys):
                             deconvolution=how)
         assert "deconvolution" in capsys.readouterr().err
         np.testing.assert_array_equal(shown, quiet)
+
+
+def test_mask_images_from_crops_taken_first_are_the_same():
+    """The calibration crops the whites once and makes its mask images from a copy of the crops
+    (``deconvolve_views``, in place), without the full frames: the same bits as
+    ``mask_images`` on the frames, for every deconvolution."""
+    from recon.calibration.mask import deconvolve_views, normalise_mask_images, view_stack
+
+    rng = np.random.default_rng(5)
+    caps, boxes = _captures(_truth(rng), rng)
+    radii = np.full(caps.shape[0], 1.3)
+    for how in ("tv", "wiener", "richardson-lucy"):
+        crops = view_stack(caps, boxes)
+        kept = crops.copy()
+        got = normalise_mask_images(deconvolve_views(crops, radii, rl_iterations=3,
+                                                     deconvolution=how))
+        assert got is crops                              # in place
+        np.testing.assert_array_equal(got, mask_images(caps, boxes, airy_radius=radii,
+                                                       rl_iterations=3, deconvolution=how))
+        assert not np.array_equal(kept, crops)
+    with pytest.raises(InputError, match=r"\(K, L, h, w\) float32"):
+        deconvolve_views(view_stack(caps, boxes).astype(np.float64), radii)
+    with pytest.raises(InputError, match="unknown deconvolution"):
+        deconvolve_views(view_stack(caps, boxes), radii, deconvolution="blind")
