@@ -81,8 +81,8 @@ import numpy as np
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
 
-__all__ = ["DEFAULT_EXPONENT", "METRICS", "band_scalable", "band_weighted", "band_column_norms_sq",
-           "band_metric", "BandMetric"]
+__all__ = ["DEFAULT_EXPONENT", "METRICS", "band_scalable", "band_weighted",
+           "band_column_norms_sq", "band_metric", "BandMetric"]
 
 #: The exponent :math:`p` of :math:`s_l = c_l^p` when none is given.
 DEFAULT_EXPONENT = 0.5
