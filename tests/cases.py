@@ -13,3 +13,14 @@ def piecewise_cube(l=8, h=32, w=32, seed=0):
         x[:, y0:y0 + rng.integers(6, 14), x0:x0 + rng.integers(6, 14)] = \
             rng.uniform(0.2, 1, (l, 1, 1))
     return x
+
+
+def reference_subspace(v, rank):
+    """The plain NumPy (float64) reference of the subspace priors' projection: the ``rank``
+    leading eigenvectors E of the band Gram matrix of ``v`` (L, H, W), signed so that each
+    sums to a positive value, and the coefficient images Eᵀ v, shape (rank, H, W)."""
+    m = v.reshape(v.shape[0], -1).astype(np.float64)
+    _, vecs = np.linalg.eigh(m @ m.T)
+    e = vecs[:, ::-1][:, :rank]
+    e *= np.sign(e.sum(axis=0))
+    return e, (e.T @ m).reshape((rank,) + v.shape[1:])

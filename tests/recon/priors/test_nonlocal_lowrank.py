@@ -4,6 +4,7 @@ references, in the registry, and inside the solvers that take a plug-and-play pr
 import numpy as np
 import pytest
 
+from cases import reference_subspace
 from recon import kernels
 from recon.errors import InputError
 from recon.operators import standard_cassi
@@ -67,11 +68,7 @@ def test_denoising_step_is_the_basis_times_the_numpy_denoiser(numpy_only):
             x = prior.prox(v, step)
     else:
         x = prior.prox(v, step)
-    m = v.reshape(v.shape[0], -1).astype(np.float64)
-    _, vecs = np.linalg.eigh(m @ m.T)
-    e = vecs[:, ::-1][:, :3]
-    e *= np.sign(e.sum(axis=0))
-    z = (e.T @ m).reshape((3,) + v.shape[1:])
+    e, z = reference_subspace(v, 3)
     with kernels.numpy_only():
         zd = denoise_nonlocal(z, np.full(3, strength * step * weight), patch=5, radius=6,
                               group=10, stride=3)

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from cases import reference_subspace
 from recon import kernels
 from recon.errors import InputError
 from recon.priors import make_prior
@@ -82,11 +83,7 @@ def test_prox_is_the_tv_prox_of_the_coefficients():
     weight, step, iters = 0.3, 0.5, 6
     prior = SubspaceTV(weight, rank=4, tv_iters=iters)
     x = prior.prox(v, step)
-    m = v.reshape(v.shape[0], -1).astype(np.float64)
-    w, vecs = np.linalg.eigh(m @ m.T)
-    e = vecs[:, ::-1][:, :4]
-    e *= np.sign(e.sum(axis=0))
-    z = (e.T @ m).reshape((4,) + v.shape[1:])
+    e, z = reference_subspace(v, 4)
     ref = (e @ prox_tv(z, step * weight, n_iter=iters).reshape(4, -1)).reshape(v.shape)
     np.testing.assert_allclose(x, ref, atol=2e-4 * np.abs(ref).max())
     # Not the identity: the TV step did something measurable.
