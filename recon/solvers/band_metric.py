@@ -212,11 +212,12 @@ class BandMetric:
         out *= self._r
         return out
 
-    def value(self, prior, x: np.ndarray) -> float | None:
+    def value(self, prior, x: np.ndarray, work: np.ndarray | None = None) -> float | None:
         r"""The prior's value as the loop minimises it: :math:`\varphi(x)`, or
-        :math:`\varphi(w\odot x)` when weighted; None where the prior has no value."""
+        :math:`\varphi(w\odot x)` when weighted (:math:`w\odot x` made in ``work`` where
+        given: no cube allocated an iteration); None where the prior has no value."""
         if self.weighted:
-            v = prior.value(x / self._sqrt_r)
+            v = prior.value(np.divide(x, self._sqrt_r, out=work))
         else:
             v = prior.value(x)
         return None if v is None else float(v)

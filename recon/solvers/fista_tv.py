@@ -179,7 +179,8 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
         if objective or restart:
             misfit, r_new = data_misfit(op, g, f)
             r_f_prev, r_f = r_f, r_new
-            value = prior_value(prior, f) if bm is None else bm.value(prior, f)
+            # `step` is free here (the prox has read it; the change test below reuses it).
+            value = prior_value(prior, f) if bm is None else bm.value(prior, f, work=step)
             obj = None if value is None else misfit + value
         if restart and ((bm.restart_dot(z, f, f_prev, threads) if bm is not None else
                          _restart_dot(z, f, f_prev, step, threads)) > 0
