@@ -17,7 +17,8 @@ from recon.errors import InputError
 from scenes._common import check_shape, coverage, supersample_grid, wavelengths_or_default, weighted_scene
 from scenes.spectra import colorchecker_reflectances, illuminant as _illuminant
 
-__all__ = ["sector_reflectances", "sector_index", "colorwheel"]
+__all__ = ["sector_reflectances", "sector_index", "colorwheel", "wheel_weights",
+           "wheel_weights_reference"]
 
 # ColorChecker patch indices of the chromatic patches (skin tones and neutrals excluded).
 _CHROMATIC = [2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16, 17]
@@ -67,12 +68,73 @@ def colorwheel(
     refl = np.concatenate([sector_reflectances(n, wl),
                            np.full((1, wl.size), float(background_reflectance)),
                            np.ones((1, wl.size))])  # background, white hub
-    y, x = supersample_grid(h, w, ss)
+    weights = wheel_weights(h, w, n, angle_deg, radius, hub, ss)
+    spectra = refl * _illuminant(illuminant, wl)[None, :]
+    return weighted_scene(weights, spectra)
+
+
+def wheel_labels(y: np.ndarray, x: np.ndarray, h: int, w: int, n: int, angle_deg: float,
+                 radius: float, hub: float) -> np.ndarray:
+    """Region of sample points (y, x): sector 0..n-1, ``n`` the background, ``n + 1`` the hub."""
     cy, cx = h / 2.0, w / 2.0
     rad = 0.5 * min(h, w) * radius
     rr = np.hypot(y - cy, x - cx)
     label = sector_index(y, x, cy, cx, n, angle_deg)
-    label = np.where(rr > rad, n, np.where(rr < hub * rad, n + 1, label))
-    weights = np.stack([coverage(label == k, h, w, ss) for k in range(n + 2)], axis=-1)
-    spectra = refl * _illuminant(illuminant, wl)[None, :]
-    return weighted_scene(weights, spectra)
+    return np.where(rr > rad, n, np.where(rr < hub * rad, n + 1, label))
+
+
+def wheel_weights_reference(h: int, w: int, n: int, angle_deg: float, radius: float,
+                            hub: float, ss: int) -> np.ndarray:
+    """Coverage (h, w, n + 2) float32 of every region: all ``ss``² sub-samples of every pixel
+    labelled (the plain reference of :func:`wheel_weights`)."""
+    y, x = supersample_grid(h, w, ss)
+    label = wheel_labels(y, x, h, w, n, angle_deg, radius, hub)
+    return np.stack([coverage(label == k, h, w, ss) for k in range(n + 2)], axis=-1)
+
+
+# A pixel whose centre lies farther than this (pixels) from every edge of the wheel has all its
+# sub-samples in one region: they lie within sqrt(2)/2 of the centre, and float32 labelling
+# errs by well under 10^-3 pixel at any size a frame takes.
+_INTERIOR_MARGIN = 0.75
+
+
+def wheel_weights(h: int, w: int, n: int, angle_deg: float, radius: float, hub: float,
+                  ss: int) -> np.ndarray:
+    r"""Coverage (h, w, n + 2) float32 of every region, equal to the bit to
+    :func:`wheel_weights_reference`.
+
+    Only pixels near an edge (the rim, the hub's circle, a sector boundary) are sub-sampled,
+    with the reference's own float32 arithmetic; every other pixel lies wholly in the region of
+    its centre. A pixel at distance :math:`r` from the centre and angle :math:`\delta` from the
+    nearest sector boundary lies :math:`r\sin\delta` from it (:math:`\delta \le 90°` since
+    :math:`n \ge 2`).
+    """
+    cy, cx = h / 2.0, w / 2.0
+    rad = 0.5 * min(h, w) * radius
+    m = _INTERIOR_MARGIN
+    dy = cy - (np.arange(h) + 0.5)[:, None]
+    dx = (np.arange(w) + 0.5)[None, :] - cx
+    r = np.hypot(dy, dx)
+    step = 360.0 / n
+    phase = np.mod(np.degrees(np.arctan2(dy, dx)) - float(angle_deg), 360.0)
+    sector = np.floor(phase / step).astype(np.int64) % n
+    within = np.mod(phase, step)
+    off_ray = r * np.sin(np.radians(np.minimum(within, step - within)))
+    inner = hub * rad
+    label = np.where(r > rad, n, np.where(r < inner, n + 1, sector))
+    edge = (np.abs(r - rad) <= m) | (np.abs(r - inner) <= m) | \
+        ((r > inner - m) & (r < rad + m) & (off_ray <= m))
+    weights = np.zeros((h, w, n + 2), np.float32)
+    ii, jj = np.nonzero(~edge)
+    weights[ii, jj, label[ii, jj]] = 1.0
+    ie, je = np.nonzero(edge)
+    if ie.size:
+        # The reference's sub-sample coordinates (scenes._common.supersample_grid), float32.
+        t = (np.arange(ss, dtype=np.float32) + 0.5) / ss
+        y = ie.astype(np.float32)[:, None, None] + t[None, :, None]
+        x = je.astype(np.float32)[:, None, None] + t[None, None, :]
+        y, x = np.broadcast_arrays(y, x)
+        sub = wheel_labels(y, x, h, w, n, angle_deg, radius, hub)
+        for k in range(n + 2):
+            weights[ie, je, k] = (sub == k).mean(axis=(1, 2), dtype=np.float32)
+    return weights

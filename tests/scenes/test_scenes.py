@@ -85,6 +85,25 @@ def test_colorwheel_rotated_by_one_sector_maps_sectors_onto_each_other(n):
     np.testing.assert_allclose(c1[interior], spectra[(k[interior] - 1) % n], rtol=1e-5, atol=1e-6)
 
 
+@pytest.mark.parametrize("shape, n, angle, radius, hub, ss", [
+    ((64, 64), 6, 0.0, 0.9, 0.15, 4),          # boundaries on the axes
+    ((63, 80), 4, 90.0, 0.9, 0.15, 4),         # odd and oblong
+    ((101, 97), 5, 13.7, 0.8, 0.3, 3),         # a sub-sample count that is not a power of 2
+    ((200, 150), 2, 45.0, 1.0, 0.0, 2),        # no hub, the rim at the frame's edge
+    ((128, 128), 16, 7.5, 0.9, 0.15, 5),       # many thin sectors
+    ((360, 420), 6, 359.9, 0.9, 0.15, 4),
+])
+def test_colorwheel_weights_equal_the_sub_sampled_reference_to_the_bit(shape, n, angle, radius,
+                                                                       hub, ss):
+    fast = cw.wheel_weights(*shape, n, angle, radius, hub, ss)
+    ref = cw.wheel_weights_reference(*shape, n, angle, radius, hub, ss)
+    assert fast.dtype == ref.dtype == np.float32
+    np.testing.assert_array_equal(fast, ref)
+    # Both anti-alias: some pixels are mixtures, and every pixel's weights sum to one.
+    assert np.any((ref > 0) & (ref < 1))
+    np.testing.assert_allclose(ref.sum(axis=-1), 1.0, atol=1e-6)
+
+
 @pytest.mark.parametrize("image", ["astronaut", "coffee"])
 def test_natural_scene_renders_back_to_the_photo(image):
     wl = np.arange(400.0, 701.0, 10.0)
