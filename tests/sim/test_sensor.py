@@ -146,6 +146,26 @@ def test_digitise_matches_numpy_reference_to_the_bit(shape):
                           sensor.digitise_reference(e, d, noise=False))
 
 
+def test_digitise_of_a_mostly_dark_frame_matches_the_reference_to_the_bit():
+    """Blocks of rows that are mostly dark draw their Poisson counts for the lit pixels only;
+    the frame, and the read noise drawn after the counts from the same stream, are the
+    reference's bit for bit: a line-like frame whose first rows are lit throughout (dense
+    blocks) and the rest dark but for two columns (sparse ones), means below and above 10
+    (NumPy's two Poisson methods), an all-dark frame."""
+    d = SMALL
+    rng = np.random.default_rng(12)
+    e = np.zeros((700, 90))
+    e[:300] = rng.uniform(0, 1.5 * d.full_well_e, (300, 90))
+    e[300:, 40] = rng.uniform(0, 8, 400)
+    e[300:, 41] = rng.uniform(10, 2 * d.full_well_e, 400)
+    for x in (e.astype(np.float32), e, np.zeros((520, 30), np.float32)):
+        for seed in (0, 4):
+            a = sensor.digitise(x, d, seed=seed)
+            b = sensor.digitise_reference(x, d, seed=seed)
+            assert np.array_equal(a.view(np.uint32), b.view(np.uint32))
+    assert np.any(sensor.digitise(e, d, seed=0)[300:, 40] != sensor.digitise(e, d, seed=1)[300:, 40])
+
+
 def test_digitise_rejects_negative_and_nan():
     for bad in (np.array([[1.0, -1.0]]), np.array([[np.nan, 1.0]])):
         with pytest.raises(InputError):
