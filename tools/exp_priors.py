@@ -27,6 +27,7 @@ Usage::
     python3 tools/exp_priors.py --designs small --views 1,5 --priors tv,subspace-tv
     python3 tools/exp_priors.py --designs paper --views 5 --scenes cloth,paints,superballs
     python3 tools/exp_priors.py --designs small --priors tv,subspace-tv,subspace-tv:rank=4
+    python3 tools/exp_priors.py --designs paper --views 1 --scenes superballs --iters 800 --tol 0
 
 A prior is a name of :data:`recon.priors.PRIORS`, optionally with options of its factory after
 colons (``subspace-tv:rank=4``, ``subspace-nlr:strength=0.4:warmup=40``; integers and floats
@@ -159,8 +160,9 @@ def design_rows(design_name: str, name: str, folder: Path, priors, counts, args)
             reconstruct(gn, op, solver=solver, iters=2, tol=None, prior=p, **kw, **metric)
         for prior in priors:
             p, kw = build(prior, op.ishape, solver, tau, nz, len(ids))
-            cube, info = reconstruct(gn, op, solver=solver, iters=DEFAULTS["iters"],
-                                     tol=DEFAULTS["tol"], prior=p, **kw, **metric)
+            cube, info = reconstruct(gn, op, solver=solver, iters=args.iters,
+                                     tol=args.tol if args.tol > 0 else None, prior=p, **kw,
+                                     **metric)
             rows.append({"design": design_name, "views": n, "scene": name, "prior": prior,
                          "seconds": info["seconds"], "iters": info["iters"],
                          **scores(np.moveaxis(cube, 2, 0), truth_bm)})
@@ -219,8 +221,20 @@ def main(argv=None) -> int:
                     help="cassi: Gaussian noise rms over the measurement's peak")
     ap.add_argument("--gap-tau", type=float, default=0.05, help="cassi: every prior's weight")
     ap.add_argument("--gap-iters", type=int, default=100, help="cassi: GAP iterations")
+    ap.add_argument("--iters", type=int, default=None,
+                    help="small/paper: most iterations (run's default if unset)")
+    ap.add_argument("--tol", type=float, default=None,
+                    help="small/paper: the stopping rule's relative change (run's default if "
+                         "unset; 0: none, every solve runs --iters)")
     ap.add_argument("--out", default="out/exp_priors")
     args = ap.parse_args(argv)
+    from kaleidospec.reconstruct import DEFAULTS
+
+    args.iters = DEFAULTS["iters"] if args.iters is None else args.iters
+    args.tol = DEFAULTS["tol"] if args.tol is None else args.tol
+    if args.iters < 1 or not args.tol >= 0:
+        print("--iters must be >= 1 and --tol >= 0", file=sys.stderr)
+        return 2
 
     priors = [p for p in args.priors.split(",") if p]
     for p in priors:

@@ -32,3 +32,9 @@ def test_build_keeps_bare_names_and_builds_options_with_the_weight():
     prior, kw = tool.build("subspace-tv:rank=4", (11, 8, 9), "fista", 0.02)
     assert kw == {} and prior.rank == 4 and prior.weight == pytest.approx(0.02)
     assert prior.prox(np.ones((11, 8, 9), np.float32), 1.0).shape == (11, 8, 9)
+
+
+@pytest.mark.parametrize("argv", [["--iters", "0"], ["--tol", "-1"], ["--tol", "nan"]])
+def test_bad_iteration_settings_are_refused(argv, capsys):
+    assert _tool().main(["--designs", "small"] + argv) == 2
+    assert "--iters must be >= 1 and --tol >= 0" in capsys.readouterr().err
