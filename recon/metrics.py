@@ -78,6 +78,20 @@ def _like64(a: np.ndarray) -> np.ndarray:
     return np.empty_like(a, dtype=np.float64)
 
 
+def _mean_squared_difference(e: np.ndarray, t: np.ndarray, scale: float | None = None) -> float:
+    """The mean of ``((e - t) / scale)**2`` (no division when ``scale`` is None) in float64, a
+    block of rows at a time into one array: element by element the operations of the whole
+    cubes' expression, summed in the same order, without float64 copies of both cubes."""
+    d = _like64(e)
+    for a in range(0, e.shape[0], _ROWS):
+        rows = slice(a, a + _ROWS)
+        b = np.subtract(_rows64(e, rows), _rows64(t, rows))
+        if scale is not None:
+            b /= scale
+        np.square(b, out=d[rows])
+    return float(np.mean(d))
+
+
 def _global_scale(truth: np.ndarray, name: str) -> float:
     s = float(truth.max())
     if s <= 0.0:
@@ -106,16 +120,7 @@ def psnr(est, truth) -> float:
     Returns ``inf`` for identical cubes.
     """
     e, t = _checked(est, truth, "psnr")
-    s = _global_scale(t, "psnr")
-    # ((e - t) / s)**2 in float64 a block of rows at a time into one array: element by
-    # element the same operations, summed in the same order, without float64 copies of both.
-    d = _like64(e)
-    for a in range(0, e.shape[0], _ROWS):
-        rows = slice(a, a + _ROWS)
-        b = np.subtract(_rows64(e, rows), _rows64(t, rows))
-        b /= s
-        np.square(b, out=d[rows])
-    mse = float(np.mean(d))
+    mse = _mean_squared_difference(e, t, _global_scale(t, "psnr"))
     return float(_psnr_from_mse(mse))
 
 
@@ -255,14 +260,7 @@ def rmse(est, truth, *, scale: bool = False) -> float:
     """
     e, t = _checked(est, truth, "rmse")
     s = _global_scale(t, "rmse") if scale else None
-    d = _like64(e)
-    for a in range(0, e.shape[0], _ROWS):
-        rows = slice(a, a + _ROWS)
-        b = np.subtract(_rows64(e, rows), _rows64(t, rows))
-        if scale:
-            b /= s
-        np.square(b, out=d[rows])
-    return float(np.sqrt(np.mean(d)))
+    return float(np.sqrt(_mean_squared_difference(e, t, s)))
 
 
 # --------------------------------------------------------------------------------------------
