@@ -13,9 +13,10 @@ Two kinds of problem (``--designs``):
     The product's own work, as ``kaleidospec run`` does it: one raw frame of the scene rendered
     through the design (the sensor's noise, seed 0; the frame independent of the calibration
     captures), the cached calibration, the first n views, the default solver, stopping rule and
-    TV weight rule (:mod:`kaleidospec.reconstruct`: the weight follows the measurement's
-    noise); each prior gets the weight TV would get.  Scored on the reconstruction grid as
-    ``run`` scores it.
+    weight rules (:func:`kaleidospec.reconstruct.prior_weight`: TV's weight follows the
+    measurement's noise; another prior sets its strength from the same noise by its own rule,
+    ``subspace-tv`` with TV's constant).  Scored on the reconstruction grid as ``run``
+    scores it.
 
 Scenes: CAVE folders ``$KALEIDOSPEC_DATA/cave/<name>``; by default the eight development
 scenes (the rest of CAVE is held out for independent evaluation).  None of them is RGB-lifted.
@@ -74,14 +75,15 @@ def parse_prior(spec: str) -> tuple[str, dict]:
     return check_prior_name(name), options
 
 
-def build(spec: str, shape, solver: str, tau: float, noise=None, n_views=None):
+def build(spec: str, shape, solver: str, tau, noise=None, n_views=None):
     """The prior ``spec`` for a solve: its name where it has no options (the solvers build
-    it, TV's arithmetic included), else the object from :func:`recon.priors.make_prior`."""
+    it, TV's arithmetic included), else the object from :func:`recon.priors.make_prior`.
+    ``tau`` None lets the prior set its strength from ``noise`` (as ``run`` does)."""
     from recon.priors import make_prior
 
     name, options = parse_prior(spec)
     if not options:
-        return name, {"tau": tau}
+        return name, {"tau": tau, **({} if noise is None else {"noise": noise})}
     return make_prior(name, shape=shape, dtype=np.float32, weight=tau, solver=solver,
                       noise=noise, n_views=n_views, **options), {}
 
@@ -133,7 +135,7 @@ def design_rows(design_name: str, name: str, folder: Path, priors, counts, args)
     from kaleidospec.models import model_of, truth_on_grid
     from kaleidospec.reconstruct import (DEFAULTS, calibrated_operator, first_views,
                                          frame_measurements, measurement_noise, normalised,
-                                         solver_metric, tv_weight)
+                                         prior_weight, solver_metric)
     from recon.app import reconstruct
     from sim.optics.design import get_design
 
@@ -154,12 +156,14 @@ def design_rows(design_name: str, name: str, folder: Path, priors, counts, args)
         solver = DEFAULTS["solver"]
         metric = solver_metric(solver, DEFAULTS["metric"])    # FISTA's step metric, as run's
         nz = None if noise is None else noise * op.scale
-        tau = tv_weight(solver, None, len(ids), nz)
+        # Each prior's weight as run gives it (TV's rule; the others' own, from the noise).
+        taus = {prior: prior_weight(parse_prior(prior)[0], solver, None, len(ids), nz)
+                for prior in priors}
         for prior in priors:   # untimed: the first solve of a process compiles its kernels
-            p, kw = build(prior, op.ishape, solver, tau, nz, len(ids))
+            p, kw = build(prior, op.ishape, solver, taus[prior], nz, len(ids))
             reconstruct(gn, op, solver=solver, iters=2, tol=None, prior=p, **kw, **metric)
         for prior in priors:
-            p, kw = build(prior, op.ishape, solver, tau, nz, len(ids))
+            p, kw = build(prior, op.ishape, solver, taus[prior], nz, len(ids))
             cube, info = reconstruct(gn, op, solver=solver, iters=args.iters,
                                      tol=args.tol if args.tol > 0 else None, prior=p, **kw,
                                      **metric)
