@@ -47,11 +47,14 @@ __all__ = ["DEFAULTS", "TAU_PER_VIEW", "TAU_PER_NOISE", "first_views", "tv_weigh
 #: count either stops far from converged (``paper``) or runs on after it, while ``tol = 1e-3``
 #: stops close to the PSNR the cap reaches (docs/reconstruction.md, "The stopping rule"; the
 #: rule is held for a few iterations after a momentum restart, :mod:`recon.solvers.base`).
+#: The cap is a guard, not the rule: one ``paper`` view needs 370-630 iterations (the eight
+#: CAVE development scenes, docs/priors.md), and a solve stopped before it converges
+#: under-reports what the instrument gives.
 #: ``metric``: FISTA's step metric (:func:`recon.solvers.fista_tv`): ``"auto"`` takes a step
 #: per band (:mod:`recon.solvers.band_metric`) where the prior allows it: TV, the same
 #: objective reached in fewer iterations (docs/speed_product.md); ``subspace-tv``, taken on
 #: the band-weighted cube (docs/priors.md).
-DEFAULTS = {"solver": "fista-tv", "iters": 400, "tol": 1e-3, "tau": None, "metric": "auto"}
+DEFAULTS = {"solver": "fista-tv", "iters": 1000, "tol": 1e-3, "tau": None, "metric": "auto"}
 #: The application's TV weight rule, in its unit-row-norm units (:func:`tv_weight`); the
 #: solvers' own defaults and the weight's valid range are :mod:`recon.priors.tv`'s.
 #: Default TV weight per solver (per view for the solvers whose data term sums over views) where

@@ -202,6 +202,7 @@ def test_demo_writes_what_the_readme_describes(demo):
 def test_demo_log_is_one_line_per_finished_step(demo):
     """``kaleidospec demo > log 2>&1``: a handful of lines, no progress-bar redraws."""
     from kaleidospec.commands.demo import DEFAULT_VIEWS
+    from kaleidospec.reconstruct import DEFAULTS
     from kaleidospec.run import parse_views
 
     _, _, log = demo
@@ -212,7 +213,8 @@ def test_demo_log_is_one_line_per_finished_step(demo):
     # Each solve is a finished step: one line, with its iterations and its time.
     solves = [ln for ln in lines if ln.startswith("fista-tv: ")]
     assert len(solves) == len(parse_views(DEFAULT_VIEWS)), log
-    assert all(re.fullmatch(r"fista-tv: \d+/400 it in \d+\.\d s \(psnr [\d.]+\)", ln)
+    cap = DEFAULTS["iters"]
+    assert all(re.fullmatch(rf"fista-tv: \d+/{cap} it in \d+\.\d s \(psnr [\d.]+\)", ln)
                for ln in solves), solves
     # The README says how many lines the log holds.
     said = re.search(r"one\s+line per finished step \((\d+) lines in all\)", README.read_text())

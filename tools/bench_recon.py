@@ -37,7 +37,7 @@ fields, deconvolved masks): forward, adjoint and one FISTA-TV iteration (best of
 an iteration of the product's solve, PSNR history included, is (t(1 + N) - t(1)) / N,
 without the setup), then the converged solve of
 ``kaleidospec.reconstruct.reconstruct_views`` with the defaults (FISTA-TV, relative change
-< 1e-3, at most 400 iterations), the truth on the model's grid as ``run`` scores it: time,
+< 1e-3, at most 1 000 iterations), the truth on the model's grid as ``run`` scores it: time,
 iterations, PSNR and the process's peak resident memory during the solve (sampled every
 20 ms).  With ``--warm`` every view count above one also runs from the one-view cube (a warm
 start: the same objective, another start).  ``--metrics scalar,auto`` solves each frame with

@@ -27,7 +27,10 @@ def run(
                               "(views added in the order centre, left, right, top, bottom, "
                               "corners)."),
     solver: str = typer.Option("fista-tv", "--solver", help="Solver (recon.solvers); default fista-tv."),
-    iters: int = typer.Option(400, "--iters", help="Most iterations."),
+    # kaleidospec.reconstruct.DEFAULTS["iters"], written out so that --help imports nothing
+    # heavy (tests/kaleidospec/test_cli_run.py checks that they agree).
+    iters: int = typer.Option(1000, "--iters", help="Most iterations (the stopping rule ends "
+                              "a solve before them)."),
     tol: float = typer.Option(1e-3, "--tol", help="Stop once the relative change "
                               "of the cube per iteration falls below this (0: run all "
                               "--iters)."),

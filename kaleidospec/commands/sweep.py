@@ -60,7 +60,7 @@ def _options(kind: str):
         solver: Optional[str] = typer.Option(None, "--solver", help="twist, gap-tv or fista-tv "
                                              "(default: kaleidospec run's, fista-tv)."),
         iters: Optional[int] = typer.Option(None, "--iters", help="Most solver iterations "
-                                            "(default: kaleidospec run's, 400, stopping at "
+                                            "(default: kaleidospec run's, 1000, stopping at "
                                             "a relative change below 1e-3)."),
         tau: Optional[float] = typer.Option(None, "--tau", help="TV weight (default: "
                                             "follows the measured noise; gap-tv its own)."),

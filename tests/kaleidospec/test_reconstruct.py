@@ -68,19 +68,19 @@ def test_footprint_model_is_within_1db_of_the_exact_operator(setup, footprint_ca
 
 
 def test_default_stops_once_converged(setup):
-    """The default stopping rule (relative change below ``tol``) ends before the cap (five
-    views well before it: 135 iterations; one view, the slowest to converge with the weight
-    that follows the noise, at 237) and where running on to it changes the PSNR by less than
-    0.1 dB; a fixed count without ``tol`` runs every iteration."""
+    """The default stopping rule (relative change below ``tol``) ends a solve (five views
+    after 135 iterations; one view, the slowest to converge with the weight that follows
+    the noise, at 237), long before the cap, and where running on to 400 iterations changes
+    the PSNR by less than 0.1 dB; a fixed count without ``tol`` runs every iteration."""
     from kaleidospec.reconstruct import DEFAULTS, reconstruct_views
 
     d, cal, frame, meta, truth, wl = setup
     _, five = reconstruct_views(frame, meta, cal, 5, truth=truth)
-    assert five["converged"] and five["iters"] < DEFAULTS["iters"] * 0.6
+    assert five["converged"] and five["iters"] < 240
     _, info = reconstruct_views(frame, meta, cal, 1, truth=truth)
-    assert info["converged"] and info["iters"] < DEFAULTS["iters"] * 0.9
-    _, full = reconstruct_views(frame, meta, cal, 1, truth=truth, tol=None)
-    assert full["iters"] == DEFAULTS["iters"] and not full["converged"]
+    assert info["converged"] and info["iters"] < 360 < DEFAULTS["iters"]
+    _, full = reconstruct_views(frame, meta, cal, 1, truth=truth, tol=None, iters=400)
+    assert full["iters"] == 400 and not full["converged"]
     assert abs(full["metrics"]["psnr"] - info["metrics"]["psnr"]) < 0.1, \
         (info["metrics"]["psnr"], full["metrics"]["psnr"])
 
