@@ -29,6 +29,7 @@ import numpy as np
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
 from recon.priors.base import PriorBase, check_prior
+from recon.priors.base import state_change as prior_state_change
 from recon.priors.tv import TVPrior, check_weight, default_weight
 from recon.solvers.base import SolverResult, check_problem
 from recon.solvers.gap_tv import gap_tv
@@ -122,6 +123,9 @@ class TemporalPrior(PriorBase):
     def load_state(self, state):
         if hasattr(self.spatial, "load_state"):
             self.spatial.load_state(state)
+
+    def state_change(self):
+        return prior_state_change(self.spatial)
 
 
 def gap_tv_temporal(op: LinearOperator, g: np.ndarray, *, ref: np.ndarray, mu: float,

@@ -23,7 +23,9 @@ methods only, so that a prior overrides one only to make it faster or to keep it
 - :meth:`PriorBase.describe` -- what a solver's ``info`` records of the prior;
 - :meth:`PriorBase.refine` -- continue an inexact (iterative) prox on the same input;
 - :meth:`PriorBase.state` / :meth:`PriorBase.load_state` -- warm-start state carried from one
-  problem to the next (a video's frames).
+  problem to the next (a video's frames);
+- :meth:`PriorBase.state_change` -- how far what the prior re-estimates from the iterate (a
+  spectral basis) moved at its last call: the solvers' stopping rule waits for it too.
 
 A prior may also declare ``band_scalable = True`` (default False): it separates over the
 bands and is positively homogeneous of degree one, :math:`\varphi(x) = \sum_l \varphi_l(x_l)`
@@ -47,7 +49,7 @@ from recon import kernels
 from recon.errors import InputError
 
 __all__ = ["Prior", "PriorBase", "check_prior", "gradient_prox", "combine_value", "refine",
-           "describe", "linear_combination"]
+           "describe", "state_change", "linear_combination"]
 
 
 @runtime_checkable
@@ -138,6 +140,17 @@ class PriorBase:
         """Start from a :meth:`state` of an earlier problem of the same shape."""
         return None
 
+    def state_change(self) -> float | None:
+        """The relative change, at the last prox, of what the prior re-estimates from the
+        iterate (its own fixed point, besides the solver's); None where it keeps nothing of
+        the kind or has no earlier call to compare with.
+
+        A prior whose prox depends on the iterate through such a state (a basis) has
+        converged only when that state has settled too; the solvers' stopping rule
+        (:class:`recon.solvers.base.IterationLoop`) waits for this to fall below its
+        tolerance as well as the iterate's relative change."""
+        return None
+
 
 def gradient_prox(prior, op, y, base, step, scale=1.0, out=None) -> np.ndarray:
     """:meth:`PriorBase.gradient_prox` of ``prior``, or its generic form for a bare prior."""
@@ -159,6 +172,13 @@ def describe(prior) -> dict:
     """:meth:`PriorBase.describe` of ``prior``; ``{"prior": its class name}`` for a bare one."""
     fn = getattr(prior, "describe", None)
     return {"prior": type(prior).__name__} if fn is None else dict(fn())
+
+
+def state_change(prior) -> float | None:
+    """:meth:`PriorBase.state_change` of ``prior``; None for a bare prior."""
+    fn = getattr(prior, "state_change", None)
+    change = None if fn is None else fn()
+    return None if change is None else float(change)
 
 
 def refine(prior, v, step, out) -> int:

@@ -33,8 +33,8 @@ from recon.errors import InputError
 from recon.priors.base import PriorBase
 from recon.prox.tv import TVProx, tv_norm
 
-__all__ = ["SubspaceTV", "band_gram", "symmetric_eigh", "leading_basis", "project", "expand",
-           "default_rank", "subspace_weight", "make_subspace_tv"]
+__all__ = ["SubspaceTV", "band_gram", "symmetric_eigh", "leading_basis", "basis_change",
+           "project", "expand", "default_rank", "subspace_weight", "make_subspace_tv"]
 
 
 def default_rank(n_bands: int) -> int:
@@ -134,6 +134,25 @@ def expand(e: np.ndarray, z: np.ndarray, out: np.ndarray | None = None) -> np.nd
     return out
 
 
+def basis_change(previous: np.ndarray | None, basis: np.ndarray) -> float | None:
+    r"""How far the spanned subspace moved: :math:`\|EE^\top - E'E'^\top\|_F /
+    \|E'E'^\top\|_F = \|EE^\top - E'E'^\top\|_F / \sqrt{k}` for the previous basis
+    :math:`E'` and the new :math:`E` (orthonormal, ``(L, k)``); signs and the order within
+    the span do not count.  None without a previous basis, infinity when the rank changed.
+
+    Why the solvers' rule needs it (docs/priors.md, "The stopping rule waits for the basis"): while the basis
+    turns, the iterate can travel with the momentum at a small relative change per
+    iteration and a PSNR still rising; the basis moves several times as much as the iterate
+    then, and settles when the iterate does.
+    """
+    if previous is None:
+        return None
+    if previous.shape != basis.shape:
+        return math.inf
+    d = basis @ basis.T - previous @ previous.T
+    return float(np.sqrt(np.sum(d * d)) / math.sqrt(basis.shape[1]))
+
+
 class _Subspace(PriorBase):
     """The projection shared by the subspace priors."""
 
@@ -142,6 +161,7 @@ class _Subspace(PriorBase):
             raise InputError(f"rank must be a positive integer, got {rank!r}")
         self.rank = None if rank is None else int(rank)
         self.basis: np.ndarray | None = None
+        self._change: float | None = None
 
     def _check(self, v: np.ndarray, step: float) -> tuple[np.ndarray, float, int]:
         v = np.asarray(v)
@@ -160,12 +180,19 @@ class _Subspace(PriorBase):
     def _coefficients(self, v: np.ndarray, rank: int) -> tuple[np.ndarray, np.ndarray]:
         """(E, z): the re-estimated basis (v's dtype) and z = Eᵀ v, shape (k, H, W)."""
         v = np.ascontiguousarray(v)
-        self.basis = leading_basis(v, rank, self.basis)
+        previous = self.basis
+        self.basis = leading_basis(v, rank, previous)
+        self._change = basis_change(previous, self.basis)
         e = self.basis.astype(v.dtype)
         return e, project(e, v)
 
+    def state_change(self) -> float | None:
+        """:func:`basis_change` of the last call (None before a second one)."""
+        return self._change
+
     def reset(self) -> None:
         self.basis = None
+        self._change = None
 
 
 class SubspaceTV(_Subspace):

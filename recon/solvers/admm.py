@@ -47,6 +47,7 @@ import numpy as np
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
 from recon.priors.base import describe as prior_info
+from recon.priors.base import state_change
 from recon.solvers.base import (IterationLoop, SolverResult, check_problem, data_misfit,
                                 gram_is_diagonal, operator_norm_sq, prior_value, resolve_prior,
                                 safe_reciprocal)
@@ -191,7 +192,8 @@ def admm(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
             if value is not None:
                 obj = data_misfit(op, g, z)[0] + value
                 history.append(obj)
-        if loop.step(it, z, dz if loop.needs_change else None, obj, rho=rho):
+        if loop.step(it, z, dz if loop.needs_change else None, obj,
+                     prior_change=state_change(prior), rho=rho):
             break
 
     return SolverResult(x=z, iterations=loop.iterations, objective=history,

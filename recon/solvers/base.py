@@ -20,7 +20,10 @@ at most :data:`RESTART_HOLD`: a restart sets the momentum to zero, and the next 
 those of plain gradient steps, smaller than the accelerated ones by a factor that grows with
 the iterations since the restart, so on a slowly converging problem they fall below ``tol``
 far from the minimum.  Restarts that follow each other closely (the momentum no longer
-accelerates) hold the test briefly, so that they cannot hold it for ever.
+accelerates) hold the test briefly, so that they cannot hold it for ever.  A prior that
+re-estimates part of itself from the iterate (a spectral basis) reports how far that moved at
+its last call (:func:`recon.priors.base.state_change`); the test then also needs that change
+below ``tol``: the solve has converged only when the prior's own estimate has settled too.
 """
 
 from __future__ import annotations
@@ -267,18 +270,24 @@ class IterationLoop:
         return num / den if den > 0 else (0.0 if num == 0 else math.inf)
 
     def step(self, it: int, x: np.ndarray, rel_change: float | None,
-             obj: float | None = None, **extra) -> bool:
-        """Record iteration ``it`` (1-based); return True when the loop must stop."""
+             obj: float | None = None, prior_change: float | None = None, **extra) -> bool:
+        """Record iteration ``it`` (1-based); return True when the loop must stop.
+
+        ``prior_change`` is the prior's :func:`~recon.priors.base.state_change` (None: the
+        prior has nothing of the kind); the rule needs it below ``tol`` as well."""
         self.iterations = it
         stop = False
         held = self._hold > 0
         self._hold = max(self._hold - 1, 0)
-        if self.tol is not None and rel_change is not None and rel_change < self.tol and not held:
+        settled = prior_change is None or (self.tol is not None and prior_change < self.tol)
+        if (self.tol is not None and rel_change is not None and rel_change < self.tol
+                and settled and not held):
             self.converged = True
             stop = True
         if self.callback is not None:
             t = time.perf_counter()
             info = {"objective": obj, "rel_change": rel_change, "held": held,
+                    "prior_change": prior_change,
                     "seconds": t - self.t0 - self.callback_seconds, **extra}
             if self.callback(it, x, info) is True:
                 stop = True

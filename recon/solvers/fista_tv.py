@@ -45,6 +45,7 @@ from recon import kernels
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
 from recon.priors.base import describe as prior_info
+from recon.priors.base import state_change
 from recon.solvers.base import (IterationLoop, SolverResult, check_problem, data_misfit,
                                 operator_norm_sq, prior_value, resolve_prior)
 
@@ -203,7 +204,7 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
         if objective and obj is not None:
             history.append(obj)
         change = loop.relative_change(f, f_prev, step) if loop.needs_change else None
-        if loop.step(it, f, change, obj):
+        if loop.step(it, f, change, obj, prior_change=state_change(prior)):
             break
 
     return SolverResult(x=f, iterations=loop.iterations, objective=history,

@@ -35,7 +35,7 @@ import numpy as np
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
 from recon.priors.base import describe as prior_info
-from recon.priors.base import gradient_prox
+from recon.priors.base import gradient_prox, state_change
 from recon.solvers.base import (IterationLoop, SolverResult, check_problem,
                                 preconditioned_norm_sq, prior_value, resolve_prior, row_norms_sq,
                                 safe_reciprocal)
@@ -193,7 +193,7 @@ def gap_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
                 obj = 0.5 * float(np.vdot(r, r)) + value
                 history.append(obj)
         change = loop.relative_change(f, f_prev, f_prev) if f_prev is not None else None
-        if loop.step(it, f, change, obj):
+        if loop.step(it, f, change, obj, prior_change=state_change(prior)):
             break
 
     info = {"accelerate": accelerate, "step": step, **prior_info(prior)}

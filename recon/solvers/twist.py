@@ -53,7 +53,7 @@ import numpy as np
 
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
-from recon.priors.base import combine_value, linear_combination, refine
+from recon.priors.base import combine_value, linear_combination, refine, state_change
 from recon.priors.base import describe as prior_info
 from recon.solvers.base import (IterationLoop, SolverResult, check_problem, data_misfit,
                                 prior_value, resolve_prior)
@@ -308,7 +308,8 @@ def twist(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
         if loop.needs_change:
             change = loop.relative_change(x, xm1, new)
         prev_f = f_val
-        if loop.step(it, x, change, f_val, max_svd=max_svd):
+        if loop.step(it, x, change, f_val, prior_change=state_change(prior),
+                     max_svd=max_svd):
             break
 
     return SolverResult(x=x, iterations=loop.iterations, objective=history,

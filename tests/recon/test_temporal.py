@@ -36,6 +36,18 @@ def test_temporal_prior_is_the_spatial_prox_then_the_threshold():
                                        rel=1e-6)
 
 
+def test_temporal_prior_reports_the_spatial_priors_state_change():
+    from recon.priors.subspace import SubspaceTV
+
+    ref = _cube(2)
+    assert TemporalPrior(TVPrior(0.1), ref, 0.05).state_change() is None
+    p = TemporalPrior(SubspaceTV(0.1, rank=2), ref, 0.05)
+    p.prox(_cube(1), 0.5)
+    p.prox(_cube(3), 0.5)
+    assert p.state_change() is not None
+    assert p.state_change() == p.spatial.state_change()
+
+
 def test_temporal_prior_goes_with_any_solver():
     rng = np.random.default_rng(4)
     op = standard_cassi((rng.random((12, 10)) > 0.5).astype(np.float32), 1, 3)

@@ -8,8 +8,8 @@ from recon import kernels
 from recon.errors import InputError
 from recon.priors import make_prior
 from recon.priors.base import Prior
-from recon.priors.subspace import (SubspaceTV, band_gram, default_rank, expand, leading_basis,
-                                   project, symmetric_eigh)
+from recon.priors.subspace import (SubspaceTV, band_gram, basis_change, default_rank, expand,
+                                   leading_basis, project, symmetric_eigh)
 from recon.prox.tv import prox_tv
 
 
@@ -53,6 +53,44 @@ def test_leading_basis_spans_the_cube_and_keeps_signs():
     flipped = -e
     again = leading_basis(v, 3, previous=flipped)
     np.testing.assert_allclose(again, flipped, atol=1e-10)
+
+
+def test_basis_change_measures_the_span_not_the_vectors():
+    rng = np.random.default_rng(1)
+    e, _ = np.linalg.qr(rng.standard_normal((10, 3)))
+    assert basis_change(None, e) is None
+    # Signs and a rotation within the span do not count.
+    rot, _ = np.linalg.qr(rng.standard_normal((3, 3)))
+    assert basis_change(e, -e) == pytest.approx(0.0, abs=1e-12)
+    assert basis_change(e, e @ rot) == pytest.approx(0.0, abs=1e-12)
+    # One vector turned by an angle a out of the span: ||EE^T - E'E'^T||_F = sqrt(2) sin a.
+    out = rng.standard_normal(10)
+    out -= e @ (e.T @ out)
+    out /= np.linalg.norm(out)
+    a = 0.01
+    turned = e.copy()
+    turned[:, 0] = np.cos(a) * e[:, 0] + np.sin(a) * out
+    assert basis_change(e, turned) == pytest.approx(np.sqrt(2) * np.sin(a) / np.sqrt(3),
+                                                    rel=1e-9)
+    assert basis_change(e, e[:, :2]) == np.inf
+
+
+def test_state_change_follows_the_basis_between_calls():
+    v = low_rank_cube(rank=3, noise=0.05)
+    prior = SubspaceTV(0.01, rank=3)
+    assert prior.state_change() is None
+    prior.prox(v, 1.0)
+    assert prior.state_change() is None        # nothing to compare with yet
+    before = prior.basis.copy()
+    w = v.copy()
+    w[0] += 0.3                                 # another spectrum: the basis turns
+    prior.prox(w, 1.0)
+    assert prior.state_change() == pytest.approx(basis_change(before, prior.basis))
+    assert prior.state_change() > 1e-3
+    prior.prox(w, 1.0)                          # the same input again: it has settled
+    assert prior.state_change() < 1e-6
+    prior.reset()
+    assert prior.state_change() is None
 
 
 @pytest.mark.parametrize("numpy_only", [False, True])
