@@ -20,10 +20,19 @@ at most :data:`RESTART_HOLD`: a restart sets the momentum to zero, and the next 
 those of plain gradient steps, smaller than the accelerated ones by a factor that grows with
 the iterations since the restart, so on a slowly converging problem they fall below ``tol``
 far from the minimum.  Restarts that follow each other closely (the momentum no longer
-accelerates) hold the test briefly, so that they cannot hold it for ever.  A prior that
-re-estimates part of itself from the iterate (a spectral basis) reports how far that moved at
-its last call (:func:`recon.priors.base.state_change`); the test then also needs that change
-below ``tol``: the solve has converged only when the prior's own estimate has settled too.
+accelerates) hold the test briefly, so that they cannot hold it for ever.
+
+A prior that re-estimates part of itself from the iterate (a spectral basis) reports how far
+that moved at its last call (:func:`recon.priors.base.state_change`).  With such a prior the
+test also needs
+
+- that change below ``tol``: the solve has converged only when the prior's own estimate has
+  settled too;
+- in a solver that restarts its momentum (FISTA), a restart within the last :data:`COAST`
+  iterations: while the momentum runs on unbroken the iterate travels along a valley of the
+  objective at a small, slowly falling change per iteration and a PSNR still rising, and the
+  restart that marks the valley's end has not come (docs/priors.md, "The stopping rule
+  waits for the basis").
 """
 
 from __future__ import annotations
@@ -42,11 +51,16 @@ from recon.priors.tv import check_weight
 from recon.prox.tv import tv_norm
 
 __all__ = ["SolverResult", "Callback", "IterationLoop", "check_problem", "objective",
-           "operator_norm_sq", "resolve_prior", "RESTART_HOLD"]
+           "operator_norm_sq", "resolve_prior", "RESTART_HOLD", "COAST"]
 
 #: The most iterations after a momentum restart (the restart's own included) in which the
 #: stopping rule is not tested (see the module notes).
 RESTART_HOLD = 10
+
+#: With a prior that re-estimates itself from the iterate, the most iterations the momentum may
+#: have run since its last restart (or the start) for the stopping rule to be tested (see the
+#: module notes).
+COAST = 50
 
 
 @dataclass
@@ -234,11 +248,16 @@ class IterationLoop:
     ----------
     tol : float or None
     callback : Callback or None
+    restarts : bool
+        The solver restarts its momentum and says so (:meth:`restarted`): with a prior that
+        reports a state the rule then also waits for a restart within :data:`COAST`
+        iterations.
     """
 
-    def __init__(self, tol, callback):
+    def __init__(self, tol, callback, restarts: bool = False):
         self.tol = tol
         self.callback = callback
+        self.restarts = bool(restarts)
         self.t0 = time.perf_counter()
         self.callback_seconds = 0.0
         self.converged = False
@@ -274,12 +293,15 @@ class IterationLoop:
         """Record iteration ``it`` (1-based); return True when the loop must stop.
 
         ``prior_change`` is the prior's :func:`~recon.priors.base.state_change` (None: the
-        prior has nothing of the kind); the rule needs it below ``tol`` as well."""
+        prior has nothing of the kind); the rule then needs it below ``tol`` as well and, in
+        a solver that restarts its momentum, a restart within :data:`COAST` iterations."""
         self.iterations = it
         stop = False
         held = self._hold > 0
         self._hold = max(self._hold - 1, 0)
-        settled = prior_change is None or (self.tol is not None and prior_change < self.tol)
+        settled = prior_change is None or (
+            self.tol is not None and prior_change < self.tol
+            and not (self.restarts and it - self._last_restart > COAST))
         if (self.tol is not None and rel_change is not None and rel_change < self.tol
                 and settled and not held):
             self.converged = True

@@ -123,7 +123,7 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
     if start not in STARTS:
         raise InputError(f"start must be one of {', '.join(STARTS)}, got {start!r}")
     bands = _use_band_metric(metric, prior, lipschitz)
-    loop = IterationLoop(tol, callback)
+    loop = IterationLoop(tol, callback, restarts=restart)
     if bands:
         from recon.solvers.band_metric import (DEFAULT_EXPONENT, BandMetric, band_metric,
                                                band_scalable)

@@ -94,6 +94,31 @@ def test_rule_waits_for_the_priors_own_state():
     assert not IterationLoop(None, None).step(1, None, 1e-4, prior_change=0.0)
 
 
+def test_rule_with_a_prior_state_waits_for_the_momentum_to_break():
+    from recon.solvers.base import COAST, RESTART_HOLD, IterationLoop
+
+    # The momentum has run since the start: past COAST iterations the iterate is coasting,
+    # and a small change does not stop a solve whose prior reports a (settled) state ...
+    loop = IterationLoop(1e-3, None, restarts=True)
+    for it in range(1, COAST + 1):
+        assert not loop.step(it, None, 1e-2, prior_change=1e-5)
+    for it in range(COAST + 1, COAST + 40):
+        assert not loop.step(it, None, 1e-4, prior_change=1e-5)
+    # ... until a restart, once its hold is over.
+    loop.restarted()
+    first = COAST + 40
+    for it in range(first, first + RESTART_HOLD):
+        assert not loop.step(it, None, 1e-4, prior_change=1e-5)
+    assert loop.step(first + RESTART_HOLD, None, 1e-4, prior_change=1e-5) and loop.converged
+    # A prior without a state (TV), or a solver without restarts, is not held.
+    tv = IterationLoop(1e-3, None, restarts=True)
+    assert not any(tv.step(it, None, 1e-2) for it in range(1, COAST + 5))
+    assert tv.step(COAST + 5, None, 1e-4)
+    plain = IterationLoop(1e-3, None)
+    assert not any(plain.step(it, None, 1e-2, prior_change=1e-5) for it in range(1, COAST + 5))
+    assert plain.step(COAST + 5, None, 1e-4, prior_change=1e-5)
+
+
 # GAP is left out: with a rank-2 subspace on this 8-band cube its iterate keeps a relative
 # change near 0.1 for 400 iterations, so its rule never fires either way.
 @pytest.mark.parametrize("name", ["fista-tv", "admm", "twist"])
