@@ -140,10 +140,10 @@ def basis_change(previous: np.ndarray | None, basis: np.ndarray) -> float | None
     :math:`E'` and the new :math:`E` (orthonormal, ``(L, k)``); signs and the order within
     the span do not count.  None without a previous basis, infinity when the rank changed.
 
-    Why the solvers' rule needs it (docs/priors.md, "The stopping rule waits for the basis"): while the basis
-    turns, the iterate can travel with the momentum at a small relative change per
-    iteration and a PSNR still rising; the basis moves several times as much as the iterate
-    then, and settles when the iterate does.
+    Why the solvers' rule needs it (docs/priors.md, "The stopping rule waits for the
+    basis"): while the basis turns, the iterate can travel with the momentum at a small
+    relative change per iteration and a PSNR still rising; the basis moves several times as
+    much as the iterate then, and settles when the iterate does.
     """
     if previous is None:
         return None

@@ -299,11 +299,8 @@ class IterationLoop:
         stop = False
         held = self._hold > 0
         self._hold = max(self._hold - 1, 0)
-        settled = prior_change is None or (
-            self.tol is not None and prior_change < self.tol
-            and not (self.restarts and it - self._last_restart > COAST))
         if (self.tol is not None and rel_change is not None and rel_change < self.tol
-                and settled and not held):
+                and not held and self._prior_settled(it, prior_change)):
             self.converged = True
             stop = True
         if self.callback is not None:
@@ -315,6 +312,15 @@ class IterationLoop:
                 stop = True
             self.callback_seconds += time.perf_counter() - t
         return stop
+
+    def _prior_settled(self, it: int, prior_change: float | None) -> bool:
+        """The rule's tests for a prior that reports a state (see :meth:`step`): its change
+        below ``tol`` and, where the solver restarts its momentum, no run of more than
+        :data:`COAST` iterations since the last restart; True for a prior without one."""
+        if prior_change is None:
+            return True
+        coasting = self.restarts and it - self._last_restart > COAST
+        return prior_change < self.tol and not coasting
 
     def seconds(self) -> float:
         return time.perf_counter() - self.t0 - self.callback_seconds
