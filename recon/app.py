@@ -244,10 +244,6 @@ def reconstruct(
         from recon import kernels
         from recon.kernels import vector as kvec
     bar = None
-    if progress:
-        from recon.progress import progress_bar
-
-        bar = progress_bar(total=int(iters), desc=solver, unit="it")
 
     def callback(it, x, info):
         if truth_bm is not None:
@@ -273,6 +269,14 @@ def reconstruct(
     prior_kw, prior_name = build_prior(prior, op, dtype, solver, tau, noise,
                                        solver_options.get("threads"))
     kwargs.update(prior_kw)
+    if progress:
+        from recon.priors.base import stages
+        from recon.progress import progress_bar
+
+        # A prior of two stages adds its second stage's iterations (recon.solvers.solve).
+        plan = stages(prior_kw.get("prior"))
+        bar = progress_bar(total=int(iters) + (0 if plan is None else int(plan[1])),
+                           desc=solver, unit="it")
     if x0_bm is not None:
         kwargs["x0"] = x0_bm
     if truth_bm is not None or bar is not None:

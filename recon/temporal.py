@@ -29,6 +29,7 @@ import numpy as np
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
 from recon.priors.base import PriorBase, check_prior
+from recon.priors.base import stages as prior_stages
 from recon.priors.base import state_change as prior_state_change
 from recon.priors.tv import TVPrior, check_weight, default_weight
 from recon.solvers.base import SolverResult, check_problem
@@ -126,6 +127,15 @@ class TemporalPrior(PriorBase):
 
     def state_change(self):
         return prior_state_change(self.spatial)
+
+    def stages(self):
+        """The spatial prior's two stages (:func:`recon.priors.base.stages`), each with the
+        temporal term around it; None for a spatial prior of one stage."""
+        plan = prior_stages(self.spatial)
+        if plan is None:
+            return None
+        first, n = plan
+        return TemporalPrior(first, self.ref, self.mu), n
 
 
 def gap_tv_temporal(op: LinearOperator, g: np.ndarray, *, ref: np.ndarray, mu: float,

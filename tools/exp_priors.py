@@ -9,6 +9,11 @@ Two kinds of problem (``--designs``):
     ``--noise`` times the measurement's peak (0.5 %, seed 0).  Every prior runs in GAP
     (:func:`recon.solvers.gap_tv.gap_tv`) with the same weight ``--gap-tau`` and ``--gap-iters``
     iterations.
+``cassi-fista``
+    The same problem solved as ``kaleidospec run`` solves a frame: operator and data at unit
+    mean row norm, the default solver (FISTA), stopping rule and step metric, each prior's
+    weight by ``run``'s rule from the noise's rms (known here, as ``run`` knows it from the
+    sensor's model).
 ``small``, ``paper``
     The product's own work, as ``kaleidospec run`` does it: one raw frame of the scene rendered
     through the design (the sensor's noise, seed 0; the frame independent of the calibration
@@ -25,6 +30,7 @@ Metrics: :mod:`recon.metrics` (PSNR with the truth's peak as 1, SSIM, SAM in deg
 Usage::
 
     python3 tools/exp_priors.py --designs cassi --priors tv,subspace-tv
+    python3 tools/exp_priors.py --designs cassi,cassi-fista --priors tv,subspace-tv,subspace-nlr
     python3 tools/exp_priors.py --designs small --views 1,5 --priors tv,subspace-tv
     python3 tools/exp_priors.py --designs paper --views 5 --scenes cloth,paints,superballs
     python3 tools/exp_priors.py --designs small --priors tv,subspace-tv,subspace-tv:rank=4
@@ -88,6 +94,16 @@ def build(spec: str, shape, solver: str, tau, noise=None, n_views=None):
                       noise=noise, n_views=n_views, **options), {}
 
 
+def compile_denoiser(priors) -> None:
+    """Compile the non-local denoiser's kernels where a prior uses them: two iterations of a
+    two-stage prior run only its first stage (``recon.solvers.solve``)."""
+    if any(parse_prior(p)[0] == "subspace-nlr" for p in priors):
+        from recon.priors.nonlocal_lowrank import denoise_nonlocal
+
+        z = np.random.default_rng(0).random((2, 16, 16)).astype(np.float32)
+        denoise_nonlocal(z, np.ones(2))
+
+
 def scores(est_bm: np.ndarray, truth_bm: np.ndarray) -> dict:
     """PSNR, SSIM, SAM of band-major cubes (truth's peak taken as 1 by recon.metrics)."""
     from recon.metrics import psnr, sam, ssim
@@ -96,11 +112,11 @@ def scores(est_bm: np.ndarray, truth_bm: np.ndarray) -> dict:
     return {"psnr": psnr(e, t), "ssim": ssim(e, t), "sam": sam(e, t)}
 
 
-def cassi_rows(name: str, folder: Path, priors, args) -> list[dict]:
-    """GAP with each prior on the single-view CASSI crop of one scene."""
+def cassi_problem(folder: Path, noise: float):
+    """The single-view CASSI problem of one scene: truth (band-major, peak 1), operator, noisy
+    measurement and the noise's rms."""
     from recon.io.cubes import read_cube
     from recon.operators import standard_cassi
-    from recon.solvers.gap_tv import gap_tv
 
     cube, _ = read_cube(folder)
     h0 = (cube.shape[0] - CASSI_SIZE) // 2
@@ -111,8 +127,16 @@ def cassi_rows(name: str, folder: Path, priors, args) -> list[dict]:
     mask = (rng.random(truth.shape[1:]) > 0.5).astype(np.float32)
     op = standard_cassi(mask, CASSI_STEP, truth.shape[0])
     g = np.asarray(op.forward(truth), dtype=np.float32)
-    sigma = args.noise * float(g.max())
+    sigma = noise * float(g.max())
     g = g + rng.normal(0.0, sigma, g.shape).astype(np.float32)
+    return truth, op, g, sigma
+
+
+def cassi_rows(name: str, folder: Path, priors, args) -> list[dict]:
+    """GAP with each prior on the single-view CASSI crop of one scene."""
+    from recon.solvers.gap_tv import gap_tv
+
+    truth, op, g, _ = cassi_problem(folder, args.noise)
     rows = []
     for prior in priors:   # untimed: the first solve of a process compiles its kernels
         p, kw = build(prior, truth.shape, "gap", args.gap_tau)
@@ -124,6 +148,37 @@ def cassi_rows(name: str, folder: Path, priors, args) -> list[dict]:
         seconds = time.perf_counter() - t0
         rows.append({"design": "cassi", "views": 1, "scene": name, "prior": prior,
                      "seconds": seconds, "iters": res.iterations, **scores(res.x, truth)})
+        print(fmt_row(rows[-1]), flush=True)
+    return rows
+
+
+def cassi_fista_rows(name: str, folder: Path, priors, args) -> list[dict]:
+    """The same single-view CASSI problem solved as ``run`` solves a frame: the operator and
+    data brought to unit mean row norm, the default solver (FISTA), stopping rule and step
+    metric, each prior's weight from the noise's rms (known here, as ``run`` knows it from
+    the sensor's model)."""
+    from kaleidospec.reconstruct import DEFAULTS, normalised, prior_weight, solver_metric
+    from recon.app import reconstruct
+
+    truth, op, g, sigma = cassi_problem(folder, args.noise)
+    op, gn = normalised(op, g)
+    nz = sigma * op.scale
+    solver = DEFAULTS["solver"]
+    metric = solver_metric(solver, DEFAULTS["metric"])
+    taus = {prior: prior_weight(parse_prior(prior)[0], solver, None, 1, nz) for prior in priors}
+    for prior in priors:   # untimed: the first solve of a process compiles its kernels
+        p, kw = build(prior, op.ishape, solver, taus[prior], nz, 1)
+        reconstruct(gn, op, solver=solver, iters=2, tol=None, prior=p, **kw, **metric)
+    compile_denoiser(priors)
+    rows = []
+    for prior in priors:
+        p, kw = build(prior, op.ishape, solver, taus[prior], nz, 1)
+        cube, info = reconstruct(gn, op, solver=solver, iters=args.iters,
+                                 tol=args.tol if args.tol > 0 else None, prior=p, **kw,
+                                 **metric)
+        rows.append({"design": "cassi-fista", "views": 1, "scene": name, "prior": prior,
+                     "seconds": info["seconds"], "iters": info["iters"],
+                     **scores(np.moveaxis(cube, 2, 0), truth)})
         print(fmt_row(rows[-1]), flush=True)
     return rows
 
@@ -162,6 +217,7 @@ def design_rows(design_name: str, name: str, folder: Path, priors, counts, args)
         for prior in priors:   # untimed: the first solve of a process compiles its kernels
             p, kw = build(prior, op.ishape, solver, taus[prior], nz, len(ids))
             reconstruct(gn, op, solver=solver, iters=2, tol=None, prior=p, **kw, **metric)
+        compile_denoiser(priors)
         for prior in priors:
             p, kw = build(prior, op.ishape, solver, taus[prior], nz, len(ids))
             cube, info = reconstruct(gn, op, solver=solver, iters=args.iters,
@@ -216,7 +272,8 @@ def write_results(out: Path, args, rows: list[dict], lines: list[str]) -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--designs", default="cassi", help="comma list of cassi, small, paper")
+    ap.add_argument("--designs", default="cassi",
+                    help="comma list of cassi, cassi-fista, small, paper")
     ap.add_argument("--views", default="1,5", help="view counts for small/paper")
     ap.add_argument("--priors", default="tv,subspace-tv",
                     help="comma list of recon.priors names (tv first: the reference)")
@@ -226,10 +283,10 @@ def main(argv=None) -> int:
     ap.add_argument("--gap-tau", type=float, default=0.05, help="cassi: every prior's weight")
     ap.add_argument("--gap-iters", type=int, default=100, help="cassi: GAP iterations")
     ap.add_argument("--iters", type=int, default=None,
-                    help="small/paper: most iterations (run's default if unset)")
+                    help="small/paper/cassi-fista: most iterations (run's default if unset)")
     ap.add_argument("--tol", type=float, default=None,
-                    help="small/paper: the stopping rule's relative change (run's default if "
-                         "unset; 0: none, every solve runs --iters)")
+                    help="small/paper/cassi-fista: the stopping rule's relative change (run's "
+                         "default if unset; 0: none, every solve runs --iters)")
     ap.add_argument("--out", default="out/exp_priors")
     args = ap.parse_args(argv)
     from kaleidospec.reconstruct import DEFAULTS
@@ -262,6 +319,8 @@ def main(argv=None) -> int:
         for design in args.designs.split(","):
             if design == "cassi":
                 rows += cassi_rows(name, folder, priors, args)
+            elif design == "cassi-fista":
+                rows += cassi_fista_rows(name, folder, priors, args)
             else:
                 rows += design_rows(design, name, folder, priors, counts, args)
         # After every scene: a long run (paper: minutes a solve) keeps what it measured.

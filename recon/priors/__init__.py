@@ -171,6 +171,6 @@ register_prior("subspace-tv", make_subspace_tv,
 from recon.priors.nonlocal_lowrank import make_subspace_nlr  # noqa: E402
 
 register_prior("subspace-nlr", make_subspace_nlr,
-               "k spectral basis vectors from the iterate, subspace-TV's prox for a warm-up, "
-               "then a non-local low-rank denoiser (patch groups, optimal singular-value "
-               "shrinkage) on their images; tuned for GAP")
+               "k spectral basis vectors from the iterate, subspace-TV for a warm-up (GAP: "
+               "60 calls; FISTA: a whole solve), then a non-local low-rank denoiser (patch "
+               "groups, optimal singular-value shrinkage) on their images")

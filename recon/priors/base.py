@@ -25,7 +25,9 @@ methods only, so that a prior overrides one only to make it faster or to keep it
 - :meth:`PriorBase.state` / :meth:`PriorBase.load_state` -- warm-start state carried from one
   problem to the next (a video's frames);
 - :meth:`PriorBase.state_change` -- how far what the prior re-estimates from the iterate (a
-  spectral basis) moved at its last call: the solvers' stopping rule waits for it too.
+  spectral basis) moved at its last call: the solvers' stopping rule waits for it too;
+- :meth:`PriorBase.stages` -- a plug-and-play prior that starts from another prior's solve
+  (:func:`recon.solvers.solve` runs the two stages).
 
 A prior may also declare ``band_scalable = True`` (default False): it separates over the
 bands and is positively homogeneous of degree one, :math:`\varphi(x) = \sum_l \varphi_l(x_l)`
@@ -49,7 +51,7 @@ from recon import kernels
 from recon.errors import InputError
 
 __all__ = ["Prior", "PriorBase", "check_prior", "gradient_prox", "combine_value", "refine",
-           "describe", "state_change", "linear_combination"]
+           "describe", "state_change", "stages", "linear_combination"]
 
 
 @runtime_checkable
@@ -151,6 +153,13 @@ class PriorBase:
         tolerance as well as the iterate's relative change."""
         return None
 
+    def stages(self) -> tuple[Prior, int] | None:
+        """A prior solved in two stages: ``(first, n)``, the prior of the first stage, which
+        the solver runs to its stopping rule (or its iterations), and ``n`` iterations of this
+        prior after it, from the first stage's result (:func:`recon.solvers.solve`).  None
+        (the default): the prior is solved in one stage."""
+        return None
+
 
 def gradient_prox(prior, op, y, base, step, scale=1.0, out=None) -> np.ndarray:
     """:meth:`PriorBase.gradient_prox` of ``prior``, or its generic form for a bare prior."""
@@ -179,6 +188,12 @@ def state_change(prior) -> float | None:
     fn = getattr(prior, "state_change", None)
     change = None if fn is None else fn()
     return None if change is None else float(change)
+
+
+def stages(prior) -> tuple[Prior, int] | None:
+    """:meth:`PriorBase.stages` of ``prior``; None for a bare prior."""
+    fn = getattr(prior, "stages", None)
+    return None if fn is None else fn()
 
 
 def refine(prior, v, step, out) -> int:

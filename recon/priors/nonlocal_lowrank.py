@@ -22,11 +22,16 @@ reference.
 The denoiser is not the proximal map of a known :math:`\varphi` (:meth:`SubspaceNLR.value` is
 None): the solvers use it in place of the prox (plug-and-play).  As in DeSCI (GAP-TV, then
 GAP with a weighted nuclear norm), a solve starts with the subspace-TV prox
-(:class:`~recon.priors.subspace.SubspaceTV`, the same weight) for its first ``warmup`` calls,
-which removes the coded artefacts of the first iterates that a patch denoiser would take for
-structure, and then uses the non-local denoiser with every :math:`\sigma_j` equal to
-``strength`` times the prox's step times the weight: the strength follows the caller's weight
-rule (in ``kaleidospec``, the measurement's noise) and the solver's step, never the scene.
+(:class:`~recon.priors.subspace.SubspaceTV`, the same weight), which removes the coded
+artefacts of the first iterates that a patch denoiser would take for structure, and then
+uses the non-local denoiser with every :math:`\sigma_j` equal to ``strength`` times the
+prox's step times the weight: the strength follows the caller's weight rule (in
+``kaleidospec``, the measurement's noise) and the solver's step, never the scene.  The
+warm-up is either a count of calls (``warmup`` an integer: GAP, whose fixed iterations the
+single-view protocol counts) or a whole solve (``warmup="rule"``: FISTA's default):
+:meth:`SubspaceNLR.stages` hands :func:`recon.solvers.solve` the subspace-TV prior, which
+runs to the solver's stopping rule, and ``denoise_iters`` iterations of the denoiser follow
+from its result.
 """
 
 from __future__ import annotations
@@ -40,7 +45,17 @@ from recon.errors import InputError
 from recon.priors.subspace import SubspaceTV, expand, subspace_weight
 
 __all__ = ["SubspaceNLR", "reference_grid", "denoise_nonlocal",
-           "make_subspace_nlr", "shrink_factors"]
+           "make_subspace_nlr", "shrink_factors", "STRENGTH", "WARMUP", "DENOISE_ITERS"]
+
+#: The denoiser's strength :math:`\gamma` per solver (``"gap"``, ``"fista"``; the others take
+#: GAP's), each chosen on the development scenes with that solver (docs/priors.md).  FISTA's
+#: step :math:`1/L` is a fraction of GAP's unit step, hence its larger :math:`\gamma`.
+STRENGTH = {"gap": 1.0, "fista": 15.0}
+#: The warm-up per solver: calls of the subspace-TV prox (an integer) or ``"rule"``, a whole
+#: subspace-TV solve to the solver's stopping rule (:meth:`SubspaceNLR.stages`).
+WARMUP = {"gap": 60, "fista": "rule"}
+#: Iterations of the denoiser after a ``"rule"`` warm-up.
+DENOISE_ITERS = 80
 
 
 def reference_grid(n: int, patch: int, stride: int) -> np.ndarray:
@@ -195,8 +210,12 @@ class SubspaceNLR(SubspaceTV):
         :math:`k`; :func:`~recon.priors.subspace.default_rank` of the cube's bands if omitted.
     strength : float
         :math:`\gamma`: the denoiser's noise deviation per unit of :math:`s\lambda`.
-    warmup : int
-        :math:`t_0`: calls of the subspace-TV prox before the non-local denoiser.
+    warmup : int or "rule"
+        :math:`t_0`: calls of the subspace-TV prox before the non-local denoiser; or
+        ``"rule"``: the subspace-TV prior is a first stage of its own (:meth:`stages`), and
+        every call of this prior is the denoiser (:math:`t_0 = 0`).
+    denoise_iters : int
+        With ``warmup="rule"``, the iterations of the denoiser after the first stage.
     patch, radius, group, stride
         The denoiser's settings (:func:`denoise_nonlocal`).
     tv_iters, isotropic, threads
@@ -208,25 +227,30 @@ class SubspaceNLR(SubspaceTV):
     band_weighted = False
 
     def __init__(self, weight: float, rank: int | None = None, *, strength: float = 1.0,
-                 warmup: int = 60, patch: int = 4, radius: int = 10, group: int = 24,
-                 stride: int = 4, tv_iters: int = 2, isotropic: bool = True,
-                 threads: int | None = None):
+                 warmup: int | str = 60, denoise_iters: int = DENOISE_ITERS, patch: int = 4,
+                 radius: int = 10, group: int = 24, stride: int = 4, tv_iters: int = 2,
+                 isotropic: bool = True, threads: int | None = None):
         super().__init__(weight, rank=rank, tv_iters=tv_iters, isotropic=isotropic,
                          threads=threads)
         strength = float(strength)
         if not (math.isfinite(strength) and strength >= 0):
             raise InputError(f"strength must be finite and >= 0, got {strength}")
-        for label, val in (("warmup", warmup), ("patch", patch), ("radius", radius),
-                           ("group", group), ("stride", stride)):
-            if isinstance(val, bool) or int(val) != val or val < (0 if label == "warmup" else 1):
-                raise InputError(f"{label} must be a positive integer, got {val!r}")
+        by_rule = warmup == "rule"
+        for label, val in ((("denoise_iters", denoise_iters),) if by_rule
+                           else (("warmup", warmup),)) + (
+                ("patch", patch), ("radius", radius), ("group", group), ("stride", stride)):
+            if (isinstance(val, (bool, str)) or int(val) != val
+                    or val < (0 if label == "warmup" else 1)):
+                raise InputError(f"{label} must be a positive integer"
+                                 f"{' or rule' if label == 'warmup' else ''}, got {val!r}")
         if int(group) < 2:
             raise InputError(f"group must be at least 2 patches, got {group}")
         if int(stride) > int(patch):
             raise InputError(f"stride {stride} must not exceed the patch side {patch} (the "
                              f"reference patches must cover every pixel)")
         self.strength = strength
-        self.warmup = int(warmup)
+        self.warmup = "rule" if by_rule else int(warmup)
+        self.denoise_iters = int(denoise_iters)
         self.patch, self.radius = int(patch), int(radius)
         self.group, self.stride = int(group), int(stride)
         self.calls = 0
@@ -238,14 +262,16 @@ class SubspaceNLR(SubspaceTV):
 
     def describe(self) -> dict:
         return {"prior": self.name, "weight": self.weight, "rank": self.rank,
-                "strength": self.strength, "warmup": self.warmup, "patch": self.patch,
+                "strength": self.strength, "warmup": self.warmup,
+                **({"denoise_iters": self.denoise_iters} if self.warmup == "rule" else {}),
+                "patch": self.patch,
                 "radius": self.radius, "group": self.group, "stride": self.stride}
 
     def prox(self, v: np.ndarray, step: float, out: np.ndarray | None = None) -> np.ndarray:
         r"""The denoising step of call :math:`t` (class notes), into ``out`` if given (``out``
         may be ``v``)."""
         self.calls += 1
-        if self.calls <= self.warmup:
+        if self.warmup != "rule" and self.calls <= self.warmup:
             return super().prox(v, step, out)
         v, step, rank = self._check(v, step)
         e, z = self._coefficients(v, rank)
@@ -260,14 +286,32 @@ class SubspaceNLR(SubspaceTV):
         """None: a plug-and-play denoiser defines no :math:`\\varphi`."""
         return None
 
+    def stages(self) -> tuple[SubspaceTV, int] | None:
+        """With ``warmup="rule"``: the subspace-TV prior of the same weight, rank and TV
+        options (the first stage, to the solver's stopping rule) and ``denoise_iters``
+        iterations of this prior after it; None with a count of warm-up calls."""
+        if self.warmup != "rule":
+            return None
+        first = SubspaceTV(self.weight, rank=self.rank, tv_iters=self.tv_iters,
+                           isotropic=self.isotropic, threads=self.threads)
+        return first, self.denoise_iters
 
-def make_subspace_nlr(ctx, *, rank: int | None = None, strength: float = 1.0,
-                      warmup: int = 60, patch: int = 4, radius: int = 10, group: int = 24,
-                      stride: int = 4, tv_iters: int = 2, warm_dual: bool = True,
+
+def make_subspace_nlr(ctx, *, rank: int | None = None, strength: float | None = None,
+                      warmup: int | str | None = None, denoise_iters: int = DENOISE_ITERS,
+                      patch: int = 4, radius: int = 10, group: int = 24, stride: int = 4,
+                      tv_iters: int = 2, warm_dual: bool = True,
                       isotropic: bool = True) -> SubspaceNLR:
     """The registry's factory (:func:`recon.priors.make_prior` ``("subspace-nlr")``), with the
     weight of :func:`~recon.priors.subspace.subspace_weight` (the caller's TV weight, or the
-    noise rule); ``warm_dual`` is accepted for the TV options' sake (the dual is kept)."""
-    return SubspaceNLR(subspace_weight(ctx), rank=rank, strength=strength, warmup=warmup,
-                       patch=patch, radius=radius, group=group, stride=stride,
-                       tv_iters=tv_iters, isotropic=isotropic, threads=ctx.threads)
+    noise rule) and, where not given, the solver's :data:`STRENGTH` and :data:`WARMUP`;
+    ``warm_dual`` is accepted for the TV options' sake (the dual is kept)."""
+    solver = "gap" if ctx.solver is None else str(ctx.solver)
+    algo = solver[:-3] if solver.endswith("-tv") else solver
+    return SubspaceNLR(subspace_weight(ctx), rank=rank,
+                       strength=STRENGTH.get(algo, STRENGTH["gap"]) if strength is None
+                       else strength,
+                       warmup=WARMUP.get(algo, WARMUP["gap"]) if warmup is None else warmup,
+                       denoise_iters=denoise_iters, patch=patch, radius=radius, group=group,
+                       stride=stride, tv_iters=tv_iters, isotropic=isotropic,
+                       threads=ctx.threads)

@@ -29,13 +29,26 @@ def test_default_takes_the_band_metric_for_tv(problem):
 
 
 def test_subspace_tv_takes_the_band_metric_weighted_and_nlr_the_scalar_step(problem):
+    """subspace-nlr's first stage is the subspace-tv solve, in the band metric; its denoiser
+    stage, after a first stage the rule stopped, takes the scalar step."""
     from kaleidospec.reconstruct import solve_views
 
     op, g = problem
     _, info = solve_views(op, g, 3, iters=5, tol=None, prior="subspace-tv", noise=0.01)
     assert info["solver_info"]["metric"] == "bands" and info["solver_info"]["band_weighted"]
     _, info = solve_views(op, g, 3, iters=2, tol=None, prior="subspace-nlr", noise=0.01)
+    assert info["solver_info"]["metric"] == "bands" and info["iters"] == 2
+    assert info["solver_info"]["first_stage"]["prior"] == "subspace-tv"
+    # Five boxes of five spectra: the default rank, 4, is not held up by empty directions.
+    rng = np.random.default_rng(3)
+    x = np.zeros(op.ishape, np.float32)
+    for y0, x0 in ((2, 2), (2, 13), (13, 2), (13, 13), (8, 8)):
+        x[:, y0:y0 + 8, x0:x0 + 8] += rng.random(op.ishape[0]).astype(np.float32)[:, None, None]
+    _, info = solve_views(op, op.forward(x), 3, iters=1000, prior="subspace-nlr", noise=0.01)
+    first = info["solver_info"]["first_stage"]
+    assert first["converged"] and info["iters"] == first["iterations"] + 80
     assert info["solver_info"]["metric"] == "scalar"
+    assert info["solver_info"]["prior"] == "subspace-nlr"
 
 
 def test_solver_metric():

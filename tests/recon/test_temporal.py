@@ -48,6 +48,21 @@ def test_temporal_prior_reports_the_spatial_priors_state_change():
     assert p.state_change() == p.spatial.state_change()
 
 
+def test_temporal_prior_hands_on_the_spatial_priors_stages():
+    """A spatial prior of two stages keeps them inside the temporal prior: the first stage
+    with the temporal term around it, not the denoiser from the first call."""
+    from recon.priors.nonlocal_lowrank import SubspaceNLR
+    from recon.priors.subspace import SubspaceTV
+
+    ref = _cube(2)
+    assert TemporalPrior(TVPrior(0.1), ref, 0.05).stages() is None
+    assert TemporalPrior(SubspaceNLR(0.1, warmup=5), ref, 0.05).stages() is None
+    first, n = TemporalPrior(SubspaceNLR(0.1, rank=2, warmup="rule", denoise_iters=9), ref,
+                             0.05).stages()
+    assert n == 9 and isinstance(first, TemporalPrior) and first.mu == 0.05
+    assert type(first.spatial) is SubspaceTV and first.ref is ref
+
+
 def test_temporal_prior_goes_with_any_solver():
     rng = np.random.default_rng(4)
     op = standard_cassi((rng.random((12, 10)) > 0.5).astype(np.float32), 1, 3)

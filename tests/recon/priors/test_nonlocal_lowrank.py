@@ -10,7 +10,8 @@ from recon.errors import InputError
 from recon.operators import standard_cassi
 from recon.priors import PRIORS, make_prior
 from recon.priors.base import Prior
-from recon.priors.nonlocal_lowrank import SubspaceNLR, denoise_nonlocal, reference_grid
+from recon.priors.nonlocal_lowrank import (STRENGTH, WARMUP, SubspaceNLR, denoise_nonlocal,
+                                          reference_grid)
 from recon.priors.subspace import SubspaceTV, leading_basis
 from recon.solvers import solve
 
@@ -108,6 +109,10 @@ def test_bad_inputs():
         SubspaceNLR(0.1, group=1)
     with pytest.raises(InputError):
         SubspaceNLR(0.1, warmup=-1)
+    with pytest.raises(InputError, match="or rule"):
+        SubspaceNLR(0.1, warmup="solve")
+    with pytest.raises(InputError, match="denoise_iters"):
+        SubspaceNLR(0.1, warmup="rule", denoise_iters=0)
     with pytest.raises(InputError, match="stride"):
         SubspaceNLR(0.1, patch=4, stride=5)     # pixels between the references uncovered
     with pytest.raises(InputError):
@@ -125,6 +130,37 @@ def test_registry_builds_it_with_the_callers_weight():
     # Without a weight: the noise rule of the least-squares solvers, as subspace-tv.
     p = make_prior("subspace-nlr", solver="fista", noise=0.02, n_views=5)
     assert p.weight == pytest.approx(0.15 * 5 * 0.02)
+
+
+@pytest.mark.parametrize("solver", ["gap-tv", "gap", "admm", None, "fista-tv", "fista"])
+def test_strength_and_warm_up_follow_the_solver(solver):
+    """GAP (and the solvers without a measured setting) warm up for a count of calls at
+    strength 1; FISTA warms up with a whole subspace-TV solve and denoises at its own
+    strength; options given win."""
+    p = make_prior("subspace-nlr", shape=(12, 20, 24), weight=0.02, solver=solver)
+    fista = solver is not None and solver.startswith("fista")
+    assert (p.strength, p.warmup) == ((STRENGTH["fista"], "rule") if fista
+                                      else (STRENGTH["gap"], WARMUP["gap"]))
+    assert (p.stages() is not None) == fista
+    q = make_prior("subspace-nlr", weight=0.02, solver=solver, strength=2.5, warmup=5)
+    assert (q.strength, q.warmup, q.stages()) == (2.5, 5, None)
+
+
+def test_rule_warm_up_hands_over_the_subspace_tv_prior():
+    """With warmup="rule" the first stage is subspace-TV with the same weight, rank and TV
+    options, and every call of the prior itself is the denoiser."""
+    v = smooth_low_rank_cube(noise=0.05)
+    nlr = SubspaceNLR(0.1, rank=3, warmup="rule", denoise_iters=7, tv_iters=3)
+    first, n = nlr.stages()
+    assert n == 7 and type(first) is SubspaceTV
+    assert (first.weight, first.rank, first.tv_iters) == (0.1, 3, 3)
+    assert nlr.describe()["denoise_iters"] == 7
+    tv = SubspaceTV(0.1, rank=3, tv_iters=3)
+    np.testing.assert_array_equal(first.prox(v, 0.5), tv.prox(v, 0.5))
+    e = leading_basis(v, 3)
+    z = np.einsum("lk,lhw->khw", e, v.astype(np.float64))
+    den = denoise_nonlocal(z.astype(np.float32), np.full(3, nlr.strength * 0.5 * 0.1))
+    np.testing.assert_allclose(nlr.prox(v, 0.5), np.einsum("lk,khw->lhw", e, den), atol=2e-5)
 
 
 def _cassi_problem():

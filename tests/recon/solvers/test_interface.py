@@ -144,6 +144,83 @@ def test_solvers_stop_only_once_the_subspace_has_settled(name, problem):
         assert any(c is not None and c < 1e-3 and m >= 1e-3 for c, m, _ in log)
 
 
+class _TwoStage:
+    """A prior of two stages (recon.priors.base.stages), or of one without ``first``: its own
+    prox is the projection onto the non-negative cube, easy to tell from the first stage's."""
+
+    name = "two-stage"
+
+    def __init__(self, first, n):
+        self.first, self.n, self.calls = first, n, 0
+
+    def prox(self, v, step, out=None):
+        self.calls += 1
+        return np.maximum(v, 0, out=out)
+
+    def value(self, x):
+        return None
+
+    def reset(self):
+        self.calls = 0
+
+    def stages(self):
+        return None if self.first is None else (self.first, self.n)
+
+
+@pytest.mark.parametrize("name", ["fista-tv", "admm", "gap-tv"])
+def test_a_two_stage_prior_runs_its_stages_in_turn(name, problem):
+    """solve() runs the first stage's prior to the rule, then the prior itself for its own
+    iterations from there, without the rule: the same arrays as the two solves by hand, one
+    count of iterations for the callback, both stages' seconds."""
+    from recon.priors.tv import TVPrior
+
+    op, _, g = problem
+    first = TVPrior(0.05, op.ishape, np.float32)
+    log = []
+    res = solve(name, op, g, iters=300, tol=1e-3, prior=_TwoStage(first, 6),
+                callback=lambda it, x, info: log.append((it, info["seconds"])) and None)
+    ref1 = solve(name, op, g, iters=300, tol=1e-3, prior=TVPrior(0.05, op.ishape, np.float32))
+    ref2 = solve(name, op, g, iters=6, x0=ref1.x, prior=_TwoStage(None, 0))
+    assert ref1.converged and ref1.iterations < 300
+    np.testing.assert_array_equal(res.x, ref2.x)
+    assert res.iterations == ref1.iterations + 6 and res.converged
+    assert [it for it, _ in log] == list(range(1, res.iterations + 1))
+    seconds = [t for _, t in log]
+    assert seconds == sorted(seconds) and res.seconds >= seconds[-1]
+    assert res.info["first_stage"]["iterations"] == ref1.iterations
+    assert res.info["first_stage"]["converged"] and res.info["first_stage"]["prior"] == "tv"
+
+
+def test_a_two_stage_prior_ends_with_a_first_stage_the_rule_did_not_stop(problem):
+    op, _, g = problem
+    from recon.priors.tv import TVPrior
+
+    prior = _TwoStage(TVPrior(0.05, op.ishape, np.float32), 6)
+    res = solve("fista-tv", op, g, iters=50, prior=prior,
+                callback=lambda it, x, info: it == 4)
+    assert res.iterations == 4 and prior.calls == 0
+    # A first stage that runs out of iterations (no rule) is the result too.
+    res = solve("fista-tv", op, g, iters=5, prior=prior)
+    assert res.iterations == 5 and not res.converged and prior.calls == 0
+    first = res.info["first_stage"]
+    assert (first["iterations"], first["converged"], first["prior"]) == (5, False, "tv")
+
+
+def test_a_two_stage_priors_second_stage_takes_fistas_scalar_step(problem):
+    """The band metric given for the solve is the first stage's; the second (a prior that
+    does not declare the metric) takes the scalar step instead of failing."""
+    from recon.priors.subspace import SubspaceTV
+
+    op, _, g = problem
+    res = solve("fista-tv", op, g, iters=400, tol=1e-3, metric="bands", metric_exponent=0.5,
+                prior=_TwoStage(SubspaceTV(0.05, rank=2), 3))
+    first = res.info["first_stage"]
+    assert first["converged"] and res.iterations == first["iterations"] + 3
+    assert res.info["metric"] == "scalar"
+    with pytest.raises(InputError, match="band metric"):
+        solve("fista-tv", op, g, iters=3, metric="bands", prior=_TwoStage(None, 0))
+
+
 def test_close_restarts_hold_briefly():
     from recon.solvers.base import RESTART_HOLD, IterationLoop
 
