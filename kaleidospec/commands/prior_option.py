@@ -14,9 +14,9 @@ PRIOR_CHOICES = {"tv": "total variation, spatial, per band",
                  "subspace-tv": "k spectral basis vectors from the iterate, TV on their images",
                  "subspace-nlr": "as subspace-tv, then a non-local low-rank denoiser (patch "
                                  "groups, singular-value shrinkage) on their images: in run "
-                                 "and demo 80 denoiser iterations after the subspace-tv "
-                                 "solve (about 10x its time), in reconstruct after 60 of "
-                                 "GAP's (give --iters 100)"}
+                                 "and demo 80 denoiser iterations (40 with several views) "
+                                 "after the subspace-tv solve, 5-11x its time; in "
+                                 "reconstruct after 60 of GAP's (give --iters 100)"}
 
 #: The library's default prior (:data:`recon.priors.DEFAULT_PRIOR`): ``reconstruct`` (single-view
 #: CASSI files) and ``video`` keep it.

@@ -45,7 +45,8 @@ from recon.errors import InputError
 from recon.priors.subspace import SubspaceTV, expand, subspace_weight
 
 __all__ = ["SubspaceNLR", "reference_grid", "denoise_nonlocal",
-           "make_subspace_nlr", "shrink_factors", "STRENGTH", "WARMUP", "DENOISE_ITERS"]
+           "make_subspace_nlr", "shrink_factors", "STRENGTH", "WARMUP", "DENOISE_ITERS",
+           "DENOISE_ITERS_VIEWS", "denoise_iters_for"]
 
 #: The denoiser's strength :math:`\gamma` per solver (``"gap"``, ``"fista"``; the others take
 #: GAP's), each chosen on the development scenes with that solver (docs/priors.md).  FISTA's
@@ -54,8 +55,16 @@ STRENGTH = {"gap": 1.0, "fista": 15.0}
 #: The warm-up per solver: calls of the subspace-TV prox (an integer) or ``"rule"``, a whole
 #: subspace-TV solve to the solver's stopping rule (:meth:`SubspaceNLR.stages`).
 WARMUP = {"gap": 60, "fista": "rule"}
-#: Iterations of the denoiser after a ``"rule"`` warm-up.
+#: Iterations of the denoiser after a ``"rule"`` warm-up: for one view, and for several (with
+#: more views the gain peaks sooner; measured at one and five, docs/priors.md).
 DENOISE_ITERS = 80
+DENOISE_ITERS_VIEWS = 40
+
+
+def denoise_iters_for(n_views: int | None) -> int:
+    """The denoiser's iterations after a ``"rule"`` warm-up for ``n_views`` views (None:
+    one)."""
+    return DENOISE_ITERS if n_views is None or int(n_views) <= 1 else DENOISE_ITERS_VIEWS
 
 
 def reference_grid(n: int, patch: int, stride: int) -> np.ndarray:
@@ -298,20 +307,22 @@ class SubspaceNLR(SubspaceTV):
 
 
 def make_subspace_nlr(ctx, *, rank: int | None = None, strength: float | None = None,
-                      warmup: int | str | None = None, denoise_iters: int = DENOISE_ITERS,
+                      warmup: int | str | None = None, denoise_iters: int | None = None,
                       patch: int = 4, radius: int = 10, group: int = 24, stride: int = 4,
                       tv_iters: int = 2, warm_dual: bool = True,
                       isotropic: bool = True) -> SubspaceNLR:
     """The registry's factory (:func:`recon.priors.make_prior` ``("subspace-nlr")``), with the
     weight of :func:`~recon.priors.subspace.subspace_weight` (the caller's TV weight, or the
-    noise rule) and, where not given, the solver's :data:`STRENGTH` and :data:`WARMUP`;
-    ``warm_dual`` is accepted for the TV options' sake (the dual is kept)."""
+    noise rule) and, where not given, the solver's :data:`STRENGTH` and :data:`WARMUP` and
+    the views' :func:`denoise_iters_for`; ``warm_dual`` is accepted for the TV options' sake
+    (the dual is kept)."""
     solver = "gap" if ctx.solver is None else str(ctx.solver)
     algo = solver[:-3] if solver.endswith("-tv") else solver
     return SubspaceNLR(subspace_weight(ctx), rank=rank,
                        strength=STRENGTH.get(algo, STRENGTH["gap"]) if strength is None
                        else strength,
                        warmup=WARMUP.get(algo, WARMUP["gap"]) if warmup is None else warmup,
-                       denoise_iters=denoise_iters, patch=patch, radius=radius, group=group,
+                       denoise_iters=denoise_iters_for(ctx.n_views) if denoise_iters is None
+                       else denoise_iters, patch=patch, radius=radius, group=group,
                        stride=stride, tv_iters=tv_iters, isotropic=isotropic,
                        threads=ctx.threads)

@@ -10,8 +10,8 @@ from recon.errors import InputError
 from recon.operators import standard_cassi
 from recon.priors import PRIORS, make_prior
 from recon.priors.base import Prior
-from recon.priors.nonlocal_lowrank import (STRENGTH, WARMUP, SubspaceNLR, denoise_nonlocal,
-                                          reference_grid)
+from recon.priors.nonlocal_lowrank import (DENOISE_ITERS, DENOISE_ITERS_VIEWS, STRENGTH, WARMUP,
+                                          SubspaceNLR, denoise_nonlocal, reference_grid)
 from recon.priors.subspace import SubspaceTV, leading_basis
 from recon.solvers import solve
 
@@ -144,6 +144,16 @@ def test_strength_and_warm_up_follow_the_solver(solver):
     assert (p.stages() is not None) == fista
     q = make_prior("subspace-nlr", weight=0.02, solver=solver, strength=2.5, warmup=5)
     assert (q.strength, q.warmup, q.stages()) == (2.5, 5, None)
+
+
+def test_denoiser_iterations_follow_the_views():
+    for views, want in ((None, DENOISE_ITERS), (1, DENOISE_ITERS), (2, DENOISE_ITERS_VIEWS),
+                        (5, DENOISE_ITERS_VIEWS)):
+        p = make_prior("subspace-nlr", weight=0.02, solver="fista-tv", n_views=views)
+        assert p.stages()[1] == want
+    p = make_prior("subspace-nlr", weight=0.02, solver="fista-tv", n_views=5, denoise_iters=7)
+    assert p.stages()[1] == 7
+    assert DENOISE_ITERS_VIEWS < DENOISE_ITERS
 
 
 def test_rule_warm_up_hands_over_the_subspace_tv_prior():
