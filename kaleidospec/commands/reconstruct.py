@@ -123,7 +123,9 @@ def reconstruct(
     out: Path = typer.Option(..., "--out", "-o", help="Output cube (.npz, .npy, .exr or .mat); missing folders are created."),
     bands: Optional[int] = typer.Option(None, "--bands", help="Number of bands (default: what the widths imply, (Wm − W)/step + 1, or a 3-D mask's)."),
     solver: str = typer.Option("gap-tv", "--solver", help="Solver: gap-tv (fastest on clean data), fista-tv (robust to noise), twist (the paper's) or admm (for plug-and-play priors)."),
-    iters: int = typer.Option(50, "--iters", help="Iterations."),
+    iters: int = typer.Option(50, "--iters", help="Iterations (at most, with --tol)."),
+    tol: Optional[float] = typer.Option(None, "--tol", help="Stop once the relative change falls below it, as run does with 0.001 (default: run all --iters)."),
+    noise: Optional[float] = typer.Option(None, "--noise", help="The measurement's rms noise, in its units: solve as run solves a frame (operator and data at unit mean row norm; the weights of fista-tv, twist, admm and of the subspace priors follow this noise)."),
     tau: Optional[float] = typer.Option(None, "--tau", help="TV weight, >= 0 (default: the solver's own); another prior's strength (default: the prior's own)."),
     prior: str = prior_option(),
     truth: Optional[Path] = typer.Option(None, "--truth", help="Reference cube (H, W, L) for PSNR/SSIM/SAM and the spectra picture."),
@@ -136,6 +138,7 @@ def reconstruct(
 ) -> None:
     """Reconstruct a hyperspectral cube from a single-view CASSI measurement, with pictures."""
     import contextlib
+    import math
     import sys
     import warnings
 
@@ -158,6 +161,10 @@ def reconstruct(
         check_weight(tau, "--tau")
     if iters < 1:
         raise InputError(f"--iters must be >= 1, got {iters}")
+    if tol is not None and not (math.isfinite(tol) and tol > 0):
+        raise InputError(f"--tol must be a positive number, got {tol}")
+    if noise is not None and not (math.isfinite(noise) and noise > 0):
+        raise InputError(f"--noise must be a positive rms in the measurement's units, got {noise}")
     if step < 1:
         raise InputError(f"--step must be a positive number of pixels per band, got {step}")
     if out.suffix.lower() not in OUT_SUFFIXES:
@@ -207,10 +214,20 @@ def reconstruct(
         warnings.showwarning = one_line_warning
         settings = dict(solver=solver, iters=iters, tau=tau, prior=prior, truth=truth_cube,
                         wavelengths=wl, progress=progress)
-        if m.ndim == 2:
-            cube, info = reconstruct_standard(g, m, step, n_bands, **settings)
+        if noise is not None:
+            import numpy as np
+
+            from kaleidospec.reconstruct import solve_views
+            from recon.operators import standard_cassi
+
+            if m.ndim == 2:
+                op = standard_cassi(np.asarray(m, np.float32), step, n_bands)
+            cube, info = solve_views(op, np.asarray(g, np.float32), 1, tol=tol, noise=noise,
+                                     **settings)
+        elif m.ndim == 2:
+            cube, info = reconstruct_standard(g, m, step, n_bands, tol=tol, **settings)
         else:
-            cube, info = solve(g, op, **settings)
+            cube, info = solve(g, op, tol=tol, **settings)
 
     # -- write the cube and its pictures, all or none --------------------------------------------
     pic_wl = wl if wl is not None else standard_wavelengths(n_bands)

@@ -92,6 +92,33 @@ def test_other_solvers_and_exr_output(problem, capsys, solver):
     assert "PSNR" not in stdout
 
 
+def test_noise_solves_as_run_does(problem, capsys):
+    """--noise: the solve of kaleidospec.reconstruct.solve_views (unit row norm, the weights
+    from the noise), the same cube as calling it; --tol stops it before --iters."""
+    from kaleidospec.reconstruct import solve_views
+    from recon.operators import standard_cassi
+
+    tmp, paths, truth = problem
+    g = np.load(paths["meas"])
+    sigma = 0.005 * float(g.max())
+    noisy = write_array2d(tmp / "noisy.npy", (g + np.random.default_rng(1).normal(
+        0.0, sigma, g.shape)).astype(np.float32))
+    out = tmp / "rec.npz"
+    args = base_args(paths, out)[:-2] + ["--measurement", str(noisy), "--solver", "fista-tv",
+                                         "--prior", "subspace-tv", "--noise", str(sigma),
+                                         "--iters", "400", "--tol", "1e-3"]
+    code, stdout, err = run(args, capsys)
+    assert code in (0, None), err
+    iters = int(re.search(r"(\d+) iterations", stdout).group(1))
+    assert iters < 400
+    mask = scipy.io.loadmat(paths["mask"])["mask"].astype(np.float32)
+    want, info = solve_views(standard_cassi(mask, STEP, L), np.load(noisy), 1,
+                             solver="fista-tv", prior="subspace-tv", noise=sigma, iters=400,
+                             tol=1e-3)
+    np.testing.assert_array_equal(read_cube(out)[0], want)
+    assert info["iters"] == iters
+
+
 def _bad_cases(tmp, paths):
     g = np.load(paths["meas"])
     nan = g.copy()
@@ -117,6 +144,9 @@ def _bad_cases(tmp, paths):
         "bands disagree": ["--bands", "5"],
         "truth shape": ["--truth", str(tmp / "small_truth.npz")],
         "bad solver": ["--solver", "magic"],
+        "bad noise": ["--noise", "0"],
+        "NaN noise": ["--noise", "nan"],
+        "bad tol": ["--tol", "-1"],
         "bad wavelengths": ["--wavelengths", "450:650:7"],
         "exr without wavelengths": ["--out", str(tmp / "rec.exr")],
         "bad out suffix": ["--out", str(tmp / "rec.txt")],
