@@ -232,7 +232,8 @@ class SubspaceNLR(SubspaceTV):
     """
 
     name = "subspace-nlr"
-    #: Not measured in FISTA's band metric (FISTA's momentum does not suit the denoiser).
+    #: The denoiser's strength was chosen with the scalar step (σ = γ s λ with one s for every
+    #: band); FISTA's band metric is for its first stage, subspace-TV.
     band_weighted = False
 
     def __init__(self, weight: float, rank: int | None = None, *, strength: float = 1.0,
