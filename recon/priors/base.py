@@ -51,7 +51,7 @@ from recon import kernels
 from recon.errors import InputError
 
 __all__ = ["Prior", "PriorBase", "check_prior", "gradient_prox", "combine_value", "refine",
-           "describe", "state_change", "stages", "linear_combination"]
+           "describe", "state_change", "stages", "linear_combination", "solver_algorithm"]
 
 
 @runtime_checkable
@@ -159,6 +159,13 @@ class PriorBase:
         prior after it, from the first stage's result (:func:`recon.solvers.solve`).  None
         (the default): the prior is solved in one stage."""
         return None
+
+
+def solver_algorithm(solver) -> str:
+    """A solver's name without the ``-tv`` of its default prior (``"fista-tv"`` →
+    ``"fista"``): the key of the priors' per-solver settings."""
+    name = str(solver)
+    return name[:-3] if name.endswith("-tv") else name
 
 
 def gradient_prox(prior, op, y, base, step, scale=1.0, out=None) -> np.ndarray:

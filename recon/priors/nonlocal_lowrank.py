@@ -42,6 +42,7 @@ import numpy as np
 
 from recon import kernels
 from recon.errors import InputError
+from recon.priors.base import solver_algorithm
 from recon.priors.subspace import SubspaceTV, expand, subspace_weight
 
 __all__ = ["SubspaceNLR", "reference_grid", "denoise_nonlocal",
@@ -194,6 +195,11 @@ def _denoise_numpy(z, scale, ry, rx, patch, radius, m, strength):
     return acc / count
 
 
+def _is_count(val, least: int) -> bool:
+    """Whether ``val`` is an integer (not a bool or a string) of at least ``least``."""
+    return not isinstance(val, (bool, str)) and int(val) == val and val >= least
+
+
 class SubspaceNLR(SubspaceTV):
     r"""Subspace prior with a non-local low-rank denoiser on the coefficient images
     (plug-and-play; module notes).
@@ -246,13 +252,12 @@ class SubspaceNLR(SubspaceTV):
         if not (math.isfinite(strength) and strength >= 0):
             raise InputError(f"strength must be finite and >= 0, got {strength}")
         by_rule = warmup == "rule"
-        for label, val in ((("denoise_iters", denoise_iters),) if by_rule
-                           else (("warmup", warmup),)) + (
-                ("patch", patch), ("radius", radius), ("group", group), ("stride", stride)):
-            if (isinstance(val, (bool, str)) or int(val) != val
-                    or val < (0 if label == "warmup" else 1)):
-                raise InputError(f"{label} must be a positive integer"
-                                 f"{' or rule' if label == 'warmup' else ''}, got {val!r}")
+        if not by_rule and not _is_count(warmup, 0):
+            raise InputError(f"warmup must be an integer >= 0 or rule, got {warmup!r}")
+        for label, val in (("denoise_iters", denoise_iters), ("patch", patch),
+                           ("radius", radius), ("group", group), ("stride", stride)):
+            if not _is_count(val, 1):
+                raise InputError(f"{label} must be a positive integer, got {val!r}")
         if int(group) < 2:
             raise InputError(f"group must be at least 2 patches, got {group}")
         if int(stride) > int(patch):
@@ -317,8 +322,7 @@ def make_subspace_nlr(ctx, *, rank: int | None = None, strength: float | None = 
     noise rule) and, where not given, the solver's :data:`STRENGTH` and :data:`WARMUP` and
     the views' :func:`denoise_iters_for`; ``warm_dual`` is accepted for the TV options' sake
     (the dual is kept)."""
-    solver = "gap" if ctx.solver is None else str(ctx.solver)
-    algo = solver[:-3] if solver.endswith("-tv") else solver
+    algo = "gap" if ctx.solver is None else solver_algorithm(ctx.solver)
     return SubspaceNLR(subspace_weight(ctx), rank=rank,
                        strength=STRENGTH.get(algo, STRENGTH["gap"]) if strength is None
                        else strength,

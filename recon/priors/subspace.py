@@ -30,7 +30,7 @@ import numpy as np
 
 from recon import kernels
 from recon.errors import InputError
-from recon.priors.base import PriorBase
+from recon.priors.base import PriorBase, solver_algorithm
 from recon.prox.tv import TVProx, tv_norm
 
 __all__ = ["SubspaceTV", "band_gram", "symmetric_eigh", "leading_basis", "basis_change",
@@ -295,8 +295,8 @@ def subspace_weight(ctx) -> float:
 
     if ctx.weight is not None:
         return float(ctx.weight) * WEIGHT_PER_TV_WEIGHT
-    solver = "fista" if ctx.solver is None else str(ctx.solver)
-    algo = solver[:-3] if solver.endswith("-tv") else solver
+    solver = "fista" if ctx.solver is None else ctx.solver
+    algo = solver_algorithm(solver)
     if ctx.noise is not None and ctx.n_views and algo in WEIGHT_PER_NOISE:
         noise = float(ctx.noise)
         if not (math.isfinite(noise) and noise > 0):

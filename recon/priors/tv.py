@@ -25,7 +25,7 @@ import numpy as np
 
 from recon import kernels
 from recon.errors import InputError
-from recon.priors.base import PriorBase, linear_combination
+from recon.priors.base import PriorBase, linear_combination, solver_algorithm
 from recon.prox.tv import TVProx, tv_norm
 
 __all__ = ["TVPrior", "DEFAULT_WEIGHT", "default_weight", "check_weight"]
@@ -38,10 +38,8 @@ DEFAULT_WEIGHT = {"fista": 0.15, "gap": 0.1, "twist": 0.15, "admm": 0.15}
 
 def default_weight(solver: str) -> float:
     """The default TV weight of ``solver`` (a name of :data:`recon.solvers.SOLVERS`)."""
-    name = str(solver)
-    name = name[:-3] if name.endswith("-tv") else name
     try:
-        return DEFAULT_WEIGHT[name]
+        return DEFAULT_WEIGHT[solver_algorithm(solver)]
     except KeyError:
         raise InputError(f"no default TV weight for solver {solver!r} (known: "
                          f"{', '.join(DEFAULT_WEIGHT)}); pass one") from None
