@@ -152,35 +152,43 @@ def cassi_rows(name: str, folder: Path, priors, args) -> list[dict]:
     return rows
 
 
-def cassi_fista_rows(name: str, folder: Path, priors, args) -> list[dict]:
-    """The same single-view CASSI problem solved as ``run`` solves a frame: the operator and
-    data brought to unit mean row norm, the default solver (FISTA), stopping rule and step
-    metric, each prior's weight from the noise's rms (known here, as ``run`` knows it from
-    the sensor's model)."""
+def run_rows(label: str, n: int, scene: str, op, g, noise, truth_bm, priors,
+             args) -> list[dict]:
+    """Each prior's solve of ``g`` (``n`` views through ``op``) as ``run`` solves a frame:
+    operator and data at unit mean row norm, the default solver, stopping rule and step
+    metric, each prior's weight by ``run``'s rule from the noise's rms ``noise`` (None:
+    unknown); rows of design ``label`` scored against ``truth_bm``."""
     from kaleidospec.reconstruct import DEFAULTS, normalised, prior_weight, solver_metric
     from recon.app import reconstruct
 
-    truth, op, g, sigma = cassi_problem(folder, args.noise)
     op, gn = normalised(op, g)
-    nz = sigma * op.scale
+    nz = None if noise is None else noise * op.scale
     solver = DEFAULTS["solver"]
-    metric = solver_metric(solver, DEFAULTS["metric"])
-    taus = {prior: prior_weight(parse_prior(prior)[0], solver, None, 1, nz) for prior in priors}
+    metric = solver_metric(solver, DEFAULTS["metric"])    # FISTA's step metric, as run's
+    # Each prior's weight as run gives it (TV's rule; the others' own, from the noise).
+    taus = {prior: prior_weight(parse_prior(prior)[0], solver, None, n, nz) for prior in priors}
     for prior in priors:   # untimed: the first solve of a process compiles its kernels
-        p, kw = build(prior, op.ishape, solver, taus[prior], nz, 1)
+        p, kw = build(prior, op.ishape, solver, taus[prior], nz, n)
         reconstruct(gn, op, solver=solver, iters=2, tol=None, prior=p, **kw, **metric)
     compile_denoiser(priors)
     rows = []
     for prior in priors:
-        p, kw = build(prior, op.ishape, solver, taus[prior], nz, 1)
+        p, kw = build(prior, op.ishape, solver, taus[prior], nz, n)
         cube, info = reconstruct(gn, op, solver=solver, iters=args.iters,
                                  tol=args.tol if args.tol > 0 else None, prior=p, **kw,
                                  **metric)
-        rows.append({"design": "cassi-fista", "views": 1, "scene": name, "prior": prior,
+        rows.append({"design": label, "views": n, "scene": scene, "prior": prior,
                      "seconds": info["seconds"], "iters": info["iters"],
-                     **scores(np.moveaxis(cube, 2, 0), truth)})
+                     **scores(np.moveaxis(cube, 2, 0), truth_bm)})
         print(fmt_row(rows[-1]), flush=True)
     return rows
+
+
+def cassi_fista_rows(name: str, folder: Path, priors, args) -> list[dict]:
+    """The same single-view CASSI problem solved as ``run`` solves a frame (:func:`run_rows`),
+    the noise's rms known here, as ``run`` knows it from the sensor's model."""
+    truth, op, g, sigma = cassi_problem(folder, args.noise)
+    return run_rows("cassi-fista", 1, name, op, g, sigma, truth, priors, args)
 
 
 def design_rows(design_name: str, name: str, folder: Path, priors, counts, args) -> list[dict]:
@@ -188,10 +196,8 @@ def design_rows(design_name: str, name: str, folder: Path, priors, counts, args)
     from kaleidospec import instrument
     from kaleidospec.calibrate import calibrate
     from kaleidospec.models import model_of, truth_on_grid
-    from kaleidospec.reconstruct import (DEFAULTS, calibrated_operator, first_views,
-                                         frame_measurements, measurement_noise, normalised,
-                                         prior_weight, solver_metric)
-    from recon.app import reconstruct
+    from kaleidospec.reconstruct import (calibrated_operator, first_views, frame_measurements,
+                                         measurement_noise)
     from sim.optics.design import get_design
 
     design = instrument.design_for_views(get_design(design_name), max(counts))
@@ -207,26 +213,8 @@ def design_rows(design_name: str, name: str, folder: Path, priors, counts, args)
         truth_bm = np.ascontiguousarray(np.moveaxis(truth, 2, 0), dtype=np.float32)
         g = frame_measurements(frame, meta, cal, ids)
         noise = measurement_noise(g, meta, cal.noise)
-        op, gn = normalised(calibrated_operator(cal, ids, model), g)
-        solver = DEFAULTS["solver"]
-        metric = solver_metric(solver, DEFAULTS["metric"])    # FISTA's step metric, as run's
-        nz = None if noise is None else noise * op.scale
-        # Each prior's weight as run gives it (TV's rule; the others' own, from the noise).
-        taus = {prior: prior_weight(parse_prior(prior)[0], solver, None, len(ids), nz)
-                for prior in priors}
-        for prior in priors:   # untimed: the first solve of a process compiles its kernels
-            p, kw = build(prior, op.ishape, solver, taus[prior], nz, len(ids))
-            reconstruct(gn, op, solver=solver, iters=2, tol=None, prior=p, **kw, **metric)
-        compile_denoiser(priors)
-        for prior in priors:
-            p, kw = build(prior, op.ishape, solver, taus[prior], nz, len(ids))
-            cube, info = reconstruct(gn, op, solver=solver, iters=args.iters,
-                                     tol=args.tol if args.tol > 0 else None, prior=p, **kw,
-                                     **metric)
-            rows.append({"design": design_name, "views": n, "scene": name, "prior": prior,
-                         "seconds": info["seconds"], "iters": info["iters"],
-                         **scores(np.moveaxis(cube, 2, 0), truth_bm)})
-            print(fmt_row(rows[-1]), flush=True)
+        rows += run_rows(design_name, len(ids), name, calibrated_operator(cal, ids, model), g,
+                         noise, truth_bm, priors, args)
     return rows
 
 
