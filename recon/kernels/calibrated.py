@@ -21,18 +21,25 @@ result does not depend on the number of threads.  The same float32 weights serve
 directions, so the adjoint is exact up to rounding.  A view whose warp is the identity skips
 the gather (``ident``).
 
-Forward: every row of the view's measurement is one task: the warped row of every band is
-gathered into an (L, W_v) scratch, each row of :math:`W` (column indices and weights) read once
-for all bands (:func:`_gather_row`), then added, masked and shifted, into the measurement row,
-so the cube's rows near it, one row of every mask image and the measurement row stay in cache.
-An identity view reads the cube's row in place.  Adjoint: :func:`shift_adjoint` makes :math:`z`
-(or, for an identity view, adds it to the output directly) and :func:`warp_adjoint` gathers
-:math:`W^\top z` into the cube, one cube row of all bands a task; both take the same ``mode``
-that says how the view's part combines with the output (see :func:`warp_adjoint`), so that a
-sum over views, and the solvers' :math:`b + sH^\top y`, need no extra pass.
+Forward: the cube is first laid out pixel-major once for all views (:func:`bands_last`: the
+L bands of a pixel side by side).  Every row of a view's measurement is then one task: the
+warped row of every band is gathered into a (W_v, L) scratch, each entry of :math:`W` adding
+one pixel's L contiguous bands (:func:`_gather_row_pixels`, a vector operation, where the
+band-major cube would need L loads from L rows far apart), turned band-major in cache, then
+added, masked and shifted, into the measurement row, so one row of every mask image and the
+measurement row stay in cache.  An identity view reads the cube's row in place.
 
-The forward pass reads each row of :math:`W` once for all bands, not once a band (figures in
-``docs/speed_product.md``).
+Adjoint: :func:`adjoint_views` makes every view's :math:`z` and gathers :math:`W_k^\top z`
+into the cube in one pass over it, pixel-major in cache likewise.  The view-by-view kernels
+it replaces stay for warps that spread a cube row over too many view rows:
+:func:`shift_adjoint` makes :math:`z` (or, for an identity view, adds it to the output
+directly) and :func:`warp_adjoint` gathers :math:`W^\top z` into the cube, one cube row of
+all bands a task; both take the same ``mode`` that says how the view's part combines with the
+output (see :func:`warp_adjoint`), so that a sum over views, and the solvers'
+:math:`b + sH^\top y`, need no extra pass.
+
+The gathers read each entry of :math:`W` once for all bands, not once a band, and the bands
+of a pixel as one vector (figures in ``docs/speed_product.md``).
 """
 
 from __future__ import annotations
@@ -42,11 +49,13 @@ from numba import prange
 
 from recon.kernels import jit
 
-__all__ = ["forward_view", "shift_adjoint", "warp_adjoint", "adjoint_views", "adjoint_rows",
-           "ADJOINT_TASK_BYTES", "ADJOINT_MAX_ZROWS"]
+__all__ = ["bands_last", "forward_view", "shift_adjoint", "warp_adjoint", "adjoint_views",
+           "adjoint_rows", "ADJOINT_TASK_BYTES", "ADJOINT_MAX_ZROWS"]
 
 #: Rows per parallel task: enough to amortise the scratch allocation, few enough to balance.
 _ROWS = 8
+#: Pixels per parallel task of :func:`bands_last`.
+_PIXELS = 64
 #: Bytes of a task's rows of every band in :func:`adjoint_views` (:func:`adjoint_rows`): with
 #: the view rows they gather from, the task's scratch stays in a core's L2 cache.
 ADJOINT_TASK_BYTES = 1 << 18
@@ -108,17 +117,60 @@ def _clipped_tap(vl, cr, al, b, acc):
         o[j] += c[j] * (b * v[j])
 
 
+@jit(parallel=True)
+def bands_last(x, out):
+    r"""``out[n, l] = x[l, n]``: the cube pixel-major, every band of a pixel side by side, for
+    the forward's gathers (:func:`forward_view`).
+
+    Parameters
+    ----------
+    x : ndarray, shape (L, N)
+        The cube, each band flattened.
+    out : ndarray, shape (N, L)
+    """
+    n_bands, n = x.shape
+    # Each task writes its block of ``out`` contiguously and reads L short runs of ``x``.
+    n_tasks = (n + _PIXELS - 1) // _PIXELS
+    for task in prange(n_tasks):
+        for p in range(task * _PIXELS, min(n, (task + 1) * _PIXELS)):
+            o = out[p]
+            for l in range(n_bands):
+                o[l] = x[l, p]
+
+
 @jit(refcount=False)
-def _forward_row(x, cm, a, c0, c1, sub, ident, indptr, indices, data, i, v, acc):
+def _gather_row_pixels(xt, indptr, indices, data, i, vt):
+    r"""``vt[j, :]`` :math:`= (W x)` at pixel ``j`` of view row ``i``, every band, from the
+    pixel-major cube ``xt`` (N, L): each entry of :math:`W` adds one pixel's L bands."""
+    wv, n_bands = vt.shape
+    base = i * wv
+    for j in range(wv):
+        r = base + j
+        acc = vt[j]
+        for l in range(n_bands):
+            acc[l] = 0
+        for e in range(indptr[r], indptr[r + 1]):
+            d = data[e]
+            src = xt[indices[e]]
+            for l in range(n_bands):
+                acc[l] += d * src[l]
+
+
+@jit(refcount=False)
+def _forward_row(x, xt, cm, a, c0, c1, sub, ident, indptr, indices, data, i, vt, v, acc):
     r"""``acc`` :math:`= g[i, :]`: every band of view row ``i`` (see the module docstring);
-    ``v`` is an (L, Wv) scratch for the warped row (unused by an identity view, which reads
-    the cube's row in place)."""
+    ``vt`` (Wv, L) and ``v`` (L, Wv) are scratch for the warped row, pixel-major as gathered
+    and band-major (unused by an identity view, which reads the cube's row in place)."""
     n_bands, wv = v.shape
     wm = acc.shape[0]
     for x_ in range(wm):
         acc[x_] = 0
     if not ident:
-        _gather_row(x, indptr, indices, data, i, v)
+        _gather_row_pixels(xt, indptr, indices, data, i, vt)
+        for l in range(n_bands):
+            vl = v[l]
+            for j in range(wv):
+                vl[j] = vt[j, l]
     base = i * wv
     for l in range(n_bands):
         vl = x[l, base:base + wv] if ident else v[l]
@@ -126,14 +178,16 @@ def _forward_row(x, cm, a, c0, c1, sub, ident, indptr, indices, data, i, v, acc)
 
 
 @jit(parallel=True)
-def forward_view(x, cm, a, c0, c1, sub, ident, indptr, indices, data, wv, out):
+def forward_view(x, xt, cm, a, c0, c1, sub, ident, indptr, indices, data, wv, out):
     r"""One view's measurement :math:`g` (overwrites ``out``).
 
     Parameters
     ----------
     x : ndarray, shape (L, H*W)
-        The cube, each band flattened (float32; ``cm``, ``c0``, ``c1``, ``data`` and ``out``
-        in the same precision).
+        The cube, each band flattened (float32; ``xt``, ``cm``, ``c0``, ``c1``, ``data`` and
+        ``out`` in the same precision).
+    xt : ndarray, shape (H*W, L)
+        The same cube pixel-major (:func:`bands_last`; not read by an identity view).
     cm : ndarray, shape (L, Hv, Wm)
         The view's mask images :math:`C_l`.
     a : ndarray of int64, shape (L,)
@@ -154,9 +208,11 @@ def forward_view(x, cm, a, c0, c1, sub, ident, indptr, indices, data, wv, out):
     hv, wm = out.shape
     n_tasks = (hv + _ROWS - 1) // _ROWS
     for task in prange(n_tasks):
+        vt = np.empty((wv, x.shape[0]), dtype=out.dtype)
         v = np.empty((x.shape[0], wv), dtype=out.dtype)
         for i in range(task * _ROWS, min(hv, (task + 1) * _ROWS)):
-            _forward_row(x, cm, a, c0, c1, sub, ident, indptr, indices, data, i, v, out[i])
+            _forward_row(x, xt, cm, a, c0, c1, sub, ident, indptr, indices, data, i, vt, v,
+                         out[i])
 
 
 @jit(refcount=False)
@@ -272,30 +328,32 @@ def adjoint_rows(n_bands: int, h: int, w: int, cores: int) -> int:
 
 @jit(refcount=False)
 def _view_z_rows(y, cm, a, c0, c1, sub, r0, r1, wv, lo, cy, z):
-    r""":math:`z_l` of one view on its rows ``r0 .. r1 - 1`` into ``z`` (``(L, n)``, row
-    ``i`` at ``(i - r0) wv``), as :func:`shift_adjoint` makes them; ``cy`` a zero-padded row
-    scratch (``lo`` zeros before the crop)."""
+    r""":math:`z_l` of one view on its rows ``r0 .. r1 - 1`` into ``z``, pixel-major
+    (``(n, L)``, row ``i`` from ``(i - r0) wv`` on), as :func:`shift_adjoint` makes them;
+    ``cy`` a zero-padded row scratch (``lo`` zeros before the crop)."""
     n_bands = a.shape[0]
     for i in range(r0, r1):
         yr = y[i]
         o = (i - r0) * wv
         for l in range(n_bands):
-            _band_z_row(cm[l, i], yr, a[l] + lo, c0[l], c1[l], sub[l], lo, cy, z[l, o:o + wv])
+            _band_z_row(cm[l, i], yr, a[l] + lo, c0[l], c1[l], sub[l], lo, cy, z[o:o + wv, l])
 
 
 @jit(refcount=False)
 def _gather_add(z, shift, indptr, indices, data, yy, w, acc, t):
-    r"""``acc[l, t, :]`` :math:`\mathrel{+}= (W^\top z_l)` on cube row ``yy`` for every band,
-    ``z`` holding the view's flat pixels from ``shift`` on."""
-    n_bands = z.shape[0]
+    r"""``acc[t, x, :]`` :math:`\mathrel{+}= (W^\top z)` at every pixel ``x`` of cube row
+    ``yy``, every band, ``z`` (pixel-major) holding the view's flat pixels from ``shift`` on:
+    each entry of :math:`W^\top` adds one pixel's L bands."""
+    n_bands = z.shape[1]
     base = yy * w
     for x_ in range(w):
         r = base + x_
+        dst = acc[t, x_]
         for e in range(indptr[r], indptr[r + 1]):
             d = data[e]
-            c = indices[e] - shift
+            src = z[indices[e] - shift]
             for l in range(n_bands):
-                acc[l, t, x_] += d * z[l, c]
+                dst[l] += d * src[l]
 
 
 @jit(parallel=True)
@@ -307,7 +365,8 @@ def adjoint_views(y, cm, a, c0, c1, sub, ident, wvs, indptr, indices, data, vlo,
     Each task is ``rows`` cube rows: for every view it makes :math:`z` on the view rows that
     those cube rows gather from (``vlo[k, task] .. vhi[k, task] - 1``, at most ``zrows``) into a
     scratch that stays in cache, gathers :math:`W_k^\top z` (an identity view: :math:`z`
-    itself) into the task's rows, and writes them once.  Where :func:`shift_adjoint` and
+    itself) into the task's rows, and writes them once.  Both scratches are pixel-major, so
+    that each entry of :math:`W_k^\top` adds the L bands of a pixel as one vector.  Where :func:`shift_adjoint` and
     :func:`warp_adjoint` view by view write every view's :math:`z` to memory and read it back
     and read and write the whole cube once a view, this reads the mask images and the
     measurement once and writes the cube once (view rows shared by two tasks are made twice).
@@ -349,8 +408,8 @@ def adjoint_views(y, cm, a, c0, c1, sub, ident, wvs, indptr, indices, data, vlo,
     for task in prange(n_tasks):
         y0 = task * rows
         y1 = min(h, y0 + rows)
-        acc = np.zeros((n_bands, rows, w), dtype=out.dtype)
-        z = np.empty((n_bands, zrows * wmax), dtype=out.dtype)
+        acc = np.zeros((rows, w, n_bands), dtype=out.dtype)
+        z = np.empty((zrows * wmax, n_bands), dtype=out.dtype)
         cy = np.zeros(lo + wm + hi, dtype=out.dtype)
         for k in range(n_views):
             r0, r1 = vlo[k, task], vhi[k, task]
@@ -360,21 +419,22 @@ def adjoint_views(y, cm, a, c0, c1, sub, ident, wvs, indptr, indices, data, vlo,
             _view_z_rows(y[k], cm[k], a[k], c0[k], c1[k], sub[k], r0, r1, wv, lo, cy, z)
             if ident[k]:
                 for yy in range(y0, y1):
-                    o = (yy - r0) * wv
-                    for l in range(n_bands):
-                        ar, zr = acc[l, yy - y0], z[l, o:o + w]
-                        for x_ in range(w):
-                            ar[x_] += zr[x_]
+                    ar, zr = acc[yy - y0], z[(yy - r0) * wv:(yy - r0) * wv + w]
+                    for x_ in range(w):
+                        for l in range(n_bands):
+                            ar[x_, l] += zr[x_, l]
             else:
                 for yy in range(y0, y1):
                     _gather_add(z, r0 * wv, indptr[k], indices, data, yy, w, acc, yy - y0)
+        # Back to band-major rows, in cache.
         for yy in range(y0, y1):
+            ar = acc[yy - y0]
             for l in range(n_bands):
-                o, ar = out[l, yy], acc[l, yy - y0]
+                o = out[l, yy]
                 if has_base:
                     b = base[l, yy]
                     for x_ in range(w):
-                        o[x_] = b[x_] + scale * ar[x_]
+                        o[x_] = b[x_] + scale * ar[x_, l]
                 else:
                     for x_ in range(w):
-                        o[x_] = ar[x_]
+                        o[x_] = ar[x_, l]

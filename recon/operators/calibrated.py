@@ -22,8 +22,9 @@ A per-band scale :math:`s_l` (``band_scale``, e.g. the inverse radiometric gains
 copied to apply it.
 
 In float32 with Numba, every view runs in the fused kernels of :mod:`recon.kernels.calibrated`
-(warp, mask image and shift of all bands in one pass per row; the adjoint as a gather along
-the rows of :math:`W_k^\top`); the NumPy code here is their tested reference and the path for
+(warp, mask image and shift of all bands in one pass per row, the warp gathering from the cube
+laid out pixel-major once for all views; the adjoint as a gather along the rows of
+:math:`W_k^\top`); the NumPy code here is their tested reference and the path for
 float64.
 """
 
@@ -66,6 +67,12 @@ class CalibratedCassi(LinearOperator):
     band_scale : (L,) float64
     offsets : (K, L) float64
     n_views, n_bands : int
+
+    Notes
+    -----
+    With the float32 kernels and a view that is not the identity, the forward keeps the
+    pixel-major copy of the cube that its gathers read (one cube's memory) from one call to
+    the next.
     """
 
     def __init__(self, mask_images, offsets, warps=None, cube_shape=None, band_scale=None):
@@ -256,9 +263,10 @@ class CalibratedCassi(LinearOperator):
         with kernels.threads():
             for k, (ident, fwd, _, a, c0, c1, sub) in enumerate(self._kernel_arrays()):
                 ip, ix, dv = fwd if fwd is not None else _NO_CSR
-                kcal.forward_view(xf, self.mask_images[k, sl], a[sl], c0[sl], c1[sl],
-                                  sub[sl], ident, ip, ix, dv, self.warps[k].out_shape[1],
-                                  out[k])
+                # One band: the pixel-major cube is the same memory, (N, 1).
+                kcal.forward_view(xf, xf.reshape(-1, 1), self.mask_images[k, sl], a[sl],
+                                  c0[sl], c1[sl], sub[sl], ident, ip, ix, dv,
+                                  self.warps[k].out_shape[1], out[k])
         return out
 
     def _kernel_arrays(self):
@@ -287,11 +295,25 @@ class CalibratedCassi(LinearOperator):
         out = np.empty(self.oshape, dtype=np.float32)
         xf = x.reshape(self.n_bands, -1)
         cm = self.mask_images
+        views = self._kernel_arrays()
         with kernels.threads():
-            for k, (ident, fwd, _, a, c0, c1, sub) in enumerate(self._kernel_arrays()):
+            # The warped views gather from the pixel-major cube, laid out once for all of
+            # them (a transient copy of the cube).
+            xt = _NO_PIXELS
+            if not all(v[0] for v in views):
+                # The buffer is kept between calls: a fresh cube-sized array costs its page
+                # faults at every call.  Taken out while in use (a dict's pop is atomic), so
+                # that a concurrent call makes its own.
+                xt = self.__dict__.pop("_pixels", None)
+                if xt is None:
+                    xt = np.empty(xf.shape[::-1], dtype=np.float32)
+                kcal.bands_last(xf, xt)
+            for k, (ident, fwd, _, a, c0, c1, sub) in enumerate(views):
                 ip, ix, dv = fwd if fwd is not None else _NO_CSR
-                kcal.forward_view(xf, cm[k], a, c0, c1, sub, ident, ip, ix, dv,
+                kcal.forward_view(xf, xt, cm[k], a, c0, c1, sub, ident, ip, ix, dv,
                                   self.warps[k].out_shape[1], out[k])
+            if xt is not _NO_PIXELS:
+                self._pixels = xt
         return out
 
     def _fused_plan(self):
@@ -420,6 +442,8 @@ class CalibratedCassi(LinearOperator):
 
 #: Placeholder CSR arrays for identity views (the kernel does not read them).
 _NO_CSR = (np.zeros(1, np.int32), np.zeros(1, np.int32), np.zeros(1, np.float32))
+#: Placeholder pixel-major cube where every view is an identity (the kernel does not read it).
+_NO_PIXELS = np.zeros((1, 1), np.float32)
 
 
 def _csr32(m):

@@ -192,3 +192,41 @@ def test_one_pass_adjoint_matches_the_view_by_view_kernels(name, monkeypatch):
     assert rel(narrow.adjoint(y), op.adjoint(y)) < RTOL32
     out = narrow.adjoint_add(y, b, -0.37, out=b.copy())
     assert rel(out, op.adjoint_add(y, b, -0.37)) < RTOL32
+
+
+def test_bands_last_is_the_transpose():
+    from recon.kernels import calibrated as kcal
+
+    rng = np.random.default_rng(51)
+    for shape in ((1, 7), (3, 1), (26, 64 * 3 + 5)):
+        x = rng.standard_normal(shape).astype(np.float32)
+        out = np.empty(shape[::-1], np.float32)
+        kcal.bands_last(x, out)
+        assert np.array_equal(out, x.T)
+
+
+def test_forward_reuses_its_pixel_major_buffer_safely():
+    """The forward's pixel-major cube is kept between calls (a later call overwrites it
+    whole), and a call that finds it taken, as a concurrent one would, makes its own: every
+    result is the fresh operator's, also from two threads at once."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    op = OPS["homographies-5"]
+    rng = np.random.default_rng(52)
+    xs = [rng.standard_normal(op.ishape).astype(np.float32) for _ in range(4)]
+    fresh = [CalibratedCassi(op.mask_images, op.offsets, op.warps, op.ishape,
+                             op.band_scale).forward(x) for x in xs]
+    assert np.array_equal(op.forward(xs[0]), fresh[0])
+    buf = op._pixels
+    assert np.array_equal(op.forward(xs[1]), fresh[1])
+    assert op._pixels is buf
+    del op._pixels                                  # taken by another call
+    assert np.array_equal(op.forward(xs[2]), fresh[2])
+    with ThreadPoolExecutor(2) as pool:
+        for _ in range(3):
+            got = list(pool.map(op.forward, xs))
+            for g, want in zip(got, fresh):
+                assert np.array_equal(g, want)
+    ident = OPS["identity-int"]
+    ident.forward(rng.standard_normal(ident.ishape).astype(np.float32))
+    assert not hasattr(ident, "_pixels")            # identity views read the cube in place
