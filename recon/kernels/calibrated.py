@@ -366,10 +366,11 @@ def adjoint_views(y, cm, a, c0, c1, sub, ident, wvs, indptr, indices, data, vlo,
     those cube rows gather from (``vlo[k, task] .. vhi[k, task] - 1``, at most ``zrows``) into a
     scratch that stays in cache, gathers :math:`W_k^\top z` (an identity view: :math:`z`
     itself) into the task's rows, and writes them once.  Both scratches are pixel-major, so
-    that each entry of :math:`W_k^\top` adds the L bands of a pixel as one vector.  Where :func:`shift_adjoint` and
-    :func:`warp_adjoint` view by view write every view's :math:`z` to memory and read it back
-    and read and write the whole cube once a view, this reads the mask images and the
-    measurement once and writes the cube once (view rows shared by two tasks are made twice).
+    that each entry of :math:`W_k^\top` adds the L bands of a pixel as one vector.  Where
+    :func:`shift_adjoint` and :func:`warp_adjoint` view by view write every view's :math:`z`
+    to memory and read it back and read and write the whole cube once a view, this reads the
+    mask images and the measurement once and writes the cube once (view rows shared by two
+    tasks are made twice).
 
     Parameters
     ----------
