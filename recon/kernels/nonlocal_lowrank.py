@@ -47,10 +47,16 @@ __all__ = ["match", "group_filters", "aggregate", "normalise", "shrink"]
 def match(guide, ref_y, ref_x, patch, radius, idx_y, idx_x):
     r"""Block matching on ``guide`` ``(c, H, W)`` float32 (distances summed over ``c``).
 
-    For reference ``g`` at ``(ref_y[g], ref_x[g])`` (top-left corners, int64), the ``m``
-    (``idx_y.shape[1]``) corners within ``± radius`` (clipped to the image) of smallest
-    squared distance, in increasing order; ties keep the scan order (rows, then columns).
-    The caller makes sure that the window holds at least ``m`` corners.
+    For reference ``g`` at ``(ref_y[g], ref_x[g])`` (top-left corners, int64): the reference
+    itself, then the ``m - 1`` (``idx_y.shape[1]``) other corners within ``± radius``
+    (clipped to the image) of smallest squared distance, in increasing order; ties keep the
+    scan order (rows, then columns).  The caller makes sure that the window holds at least
+    ``m`` corners.
+
+    The reference always leads its group, so that every pixel of a reference patch gets an
+    estimate: where more than ``m`` patches tie with it (a flat region of the guide) and were
+    scanned before it, the group would otherwise leave it out, and a pixel no group holds
+    has no estimate at all.
     """
     c, h, w = guide.shape
     n_ref, m = idx_y.shape
@@ -62,8 +68,15 @@ def match(guide, ref_y, ref_x, patch, radius, idx_y, idx_x):
         best = np.full(m, np.inf)
         by = np.zeros(m, np.int64)
         bx = np.zeros(m, np.int64)
+        # The reference first, at distance 0: no candidate goes before it (the insertion
+        # below moves past strictly larger distances only).
+        best[0] = 0.0
+        by[0] = ry
+        bx[0] = rx
         for y in range(max(0, ry - radius), min(hmax, ry + radius) + 1):
             for x in range(max(0, rx - radius), min(wmax, rx + radius) + 1):
+                if y == ry and x == rx:
+                    continue
                 worst = best[m - 1]
                 d = 0.0
                 for ch in range(c):

@@ -7,7 +7,8 @@ are then denoised by a patch-based non-local low-rank denoiser (FastHyDe / NGmee
 
 1. each image :math:`z_j` is divided by its noise deviation :math:`\sigma_j` (whitened),
 2. block matching on the first whitened image: for every reference patch on a grid of stride
-   ``stride``, the ``group`` most similar patches within ``± radius`` pixels,
+   ``stride``, the reference and the ``group - 1`` most similar other patches within
+   ``± radius`` pixels,
 3. each group's matrix (a column per patch, the patch in all :math:`k` images) less its mean
    column is shrunk in its singular values by Gavish and Donoho's optimal shrinker for white
    noise of unit deviation (values inside the noise's bulk removed, those above it pulled
@@ -180,7 +181,10 @@ def _denoise_numpy(z, scale, ry, rx, patch, radius, m, strength):
         xs = np.arange(max(0, x0 - radius), min(w - patch, x0 + radius) + 1)
         cand = gwin[ys[0]:ys[-1] + 1, xs[0]:xs[-1] + 1].reshape(-1, patch * patch)
         dist = ((cand - gwin[y0, x0]) ** 2).sum(axis=1)
-        best = np.argsort(dist, kind="stable")[:m]
+        # The reference first, then the others by distance (ties in scan order).
+        ref = (y0 - ys[0]) * xs.size + (x0 - xs[0])
+        order = np.argsort(dist, kind="stable")
+        best = np.concatenate(([ref], order[order != ref]))[:m]
         my, mx = ys[best // xs.size], xs[best % xs.size]
         y = win[my, mx].reshape(m, d).T                      # (d, m)
         mu = y.mean(axis=1, keepdims=True)

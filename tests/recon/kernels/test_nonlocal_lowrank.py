@@ -34,10 +34,39 @@ def test_match_is_the_brute_force_nearest_patches():
         ref = g64[:, y0:y0 + patch, x0:x0 + patch]
         dist = np.array([((g64[:, y:y + patch, x:x + patch] - ref) ** 2).sum()
                          for y, x in cands])
-        best = np.argsort(dist, kind="stable")[:m]
+        ref = cands.index((y0, x0))
+        order = np.argsort(dist, kind="stable")
+        best = np.concatenate(([ref], order[order != ref]))[:m]
         np.testing.assert_array_equal(idx_y[g], [cands[i][0] for i in best])
         np.testing.assert_array_equal(idx_x[g], [cands[i][1] for i in best])
         assert (idx_y[g, 0], idx_x[g, 0]) == (y0, x0)    # the reference itself first
+
+
+def test_a_flat_guide_keeps_every_reference_in_its_group():
+    """Where more patches than a group holds tie with the reference (a flat region of the
+    guide, e.g. a part of the cube no view sees) the reference still leads its group, so
+    every pixel gets an estimate: before, the groups took the first patches of the scan and
+    pixels that no group held came out 0/0 = NaN."""
+    from recon.kernels import nonlocal_lowrank as kn
+    from recon.priors.nonlocal_lowrank import _references, denoise_nonlocal
+
+    rng = np.random.default_rng(4)
+    z = np.zeros((2, 40, 40), np.float32)
+    z[1] = rng.random((40, 40))
+    z[0, 30:, 30:] = rng.random((10, 10))          # flat except one corner
+    patch, m = 4, 24
+    ry, rx = _references(z.shape[1:], patch, 4)
+    idx_y = np.empty((ry.size, m), np.int64)
+    idx_x = np.empty_like(idx_y)
+    kn.match(np.ascontiguousarray(z[:1]), ry, rx, patch, 10, idx_y, idx_x)
+    np.testing.assert_array_equal(idx_y[:, 0], ry)
+    np.testing.assert_array_equal(idx_x[:, 0], rx)
+    got = denoise_nonlocal(z, np.ones(2))
+    assert np.all(np.isfinite(got))
+    with kernels.numpy_only():
+        ref = denoise_nonlocal(z.astype(np.float64), np.ones(2))
+    assert np.all(np.isfinite(ref))
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-5 * np.abs(ref).max())
 
 
 def test_shrink_is_gavish_donohos_optimal_shrinker():
