@@ -60,12 +60,14 @@ def best(fn, repeat: int) -> float:
 def passes(shape, repeat: int) -> dict:
     """Milliseconds of each pass of the denoiser on random images of ``shape``."""
     from recon.kernels import nonlocal_lowrank as kn
-    from recon.priors.nonlocal_lowrank import _references, denoise_nonlocal
+    from recon.priors.nonlocal_lowrank import denoise_nonlocal, reference_grid
 
     k, h, w = shape
     z = np.random.default_rng(0).random(shape).astype(np.float32)
     denoise_nonlocal(z, np.full(k, 0.1))                     # compiles
-    ry, rx = _references((h, w), PATCH, STRIDE)              # the denoiser's own grid
+    gy, gx = np.meshgrid(reference_grid(h, PATCH, STRIDE), reference_grid(w, PATCH, STRIDE),
+                         indexing="ij")
+    ry, rx = np.ascontiguousarray(gy.ravel()), np.ascontiguousarray(gx.ravel())
     scale = np.full(k, 10.0)
     guide = np.ascontiguousarray(z[:1] * np.float32(scale[0]))
     iy, ix = np.empty((ry.size, GROUP), np.int64), np.empty((ry.size, GROUP), np.int64)
