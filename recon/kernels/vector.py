@@ -12,7 +12,8 @@ from numba import prange
 
 from recon.kernels import jit
 
-__all__ = ["combine3", "diff_dot", "diff_sq", "extrapolate", "blocks", "squared_distance"]
+__all__ = ["combine3", "diff_dot", "diff_sq", "extrapolate", "momentum_pass", "blocks",
+           "squared_distance"]
 
 #: Elements per parallel block.
 _BLOCK = 1 << 15
@@ -88,6 +89,45 @@ def extrapolate(f, f_prev, beta, out):
         o, ff, pp = out[lo:hi], f[lo:hi], f_prev[lo:hi]
         for i in range(hi - lo):
             o[i] = ff[i] + beta * (ff[i] - pp[i])
+
+
+@jit(parallel=True)
+def momentum_pass(z, f, f_prev, beta, dot, change, size):
+    r"""FISTA's three vector updates after the prox, in one pass over ``(L, N)`` cubes.
+
+    For every band :math:`l` and block of ``_BLOCK`` elements (task ``l * nb + j``, ``nb``
+    blocks a band) it sums, in float64,
+
+    * ``dot`` :math:`\mathrel{+}= (z-f)\cdot(f-f_\mathrm{prev})` (the restart test's inner
+      product, taken with the old ``z``),
+    * ``change`` :math:`\mathrel{+}= \|f-f_\mathrm{prev}\|^2` and ``size``
+      :math:`\mathrel{+}= \|f_\mathrm{prev}\|^2` (the stopping rule's relative change),
+
+    then writes ``z`` :math:`= f + \beta (f - f_\mathrm{prev})` (the momentum step).  The
+    blocks are a band's own, so a caller weighs each band's sums (the band metric) and adds
+    them in a fixed order: the result does not depend on the threads.
+    """
+    n_bands, n = f.shape
+    nb = (n + _BLOCK - 1) // _BLOCK
+    for task in prange(n_bands * nb):
+        band = task // nb
+        lo = (task - band * nb) * _BLOCK
+        hi = min(n, lo + _BLOCK)
+        zz, ff, pp = z[band, lo:hi], f[band, lo:hi], f_prev[band, lo:hi]
+        a = 0.0
+        c = 0.0
+        s = 0.0
+        for i in range(hi - lo):
+            fi = ff[i]
+            pi = pp[i]
+            d = fi - pi
+            a += (zz[i] - fi) * d
+            c += np.float64(d) * np.float64(d)
+            s += np.float64(pi) * np.float64(pi)
+            zz[i] = fi + beta * d
+        dot[task] = a
+        change[task] = c
+        size[task] = s
 
 
 def blocks(n: int) -> int:

@@ -16,7 +16,8 @@ from recon import kernels
 from recon.operators import dot_test
 from recon.prox import TVProx, tv_norm_per_band
 from recon.solvers import solve
-from recon.solvers.fista_tv import _extrapolate, _restart_dot
+from recon.solvers.band_metric import BandMetric
+from recon.solvers.fista_tv import _extrapolate, _momentum_pass, _restart_dot
 from recon.priors import TVPrior
 from recon.priors.base import linear_combination as _combine
 
@@ -162,6 +163,37 @@ def test_vector_updates_match_numpy():
     with kernels.numpy_only():
         d_ref = _restart_dot(a, b, c, np.empty_like(a), None)
     assert d == pytest.approx(d_ref, rel=1e-5)
+
+
+@pytest.mark.parametrize("metric", [None, (0.3, 2.0, 1.1)])
+@pytest.mark.parametrize("shape", [(3, 37, 41), (3, 211, 317)])
+def test_momentum_pass_matches_numpy(metric, shape):
+    # FISTA's fused pass (the restart test's inner product, the momentum step, the relative
+    # change) against the three NumPy steps it replaces and against the plain expressions in
+    # float64, scalar and band metric; the larger shape has several blocks a band.
+    rng = np.random.default_rng(21)
+    f, step, z0 = (rng.standard_normal(shape).astype(np.float32) for _ in range(3))
+    f_prev = f + np.float32(0.1) * step
+    bm = None if metric is None else BandMetric(metric, np.float32)
+    z, z_ref = z0.copy(), z0.copy()
+    dot, change = _momentum_pass(z, f, f_prev, 0.7, bm, None, np.empty_like(f), True)
+    with kernels.numpy_only():
+        dot_ref, change_ref = _momentum_pass(z_ref, f, f_prev, 0.7, bm, None,
+                                             np.empty_like(f), True)
+    assert rel(z, z_ref) < RTOL32
+    f64, p64, z64 = (a.astype(np.float64) for a in (f, f_prev, z0))
+    w = np.ones(shape[0]) if metric is None else np.asarray(metric)
+    want = sum(wl * np.vdot(zl - fl, fl - pl) for wl, zl, fl, pl in zip(w, z64, f64, p64))
+    # The inner product cancels (terms of either sign): its error is relative to the terms'.
+    scale = sum(wl * np.abs((zl - fl) * (fl - pl)).sum() for wl, zl, fl, pl
+                in zip(w, z64, f64, p64))
+    assert abs(dot - want) < 1e-7 * scale and abs(dot_ref - want) < 1e-6 * scale
+    assert change == pytest.approx(change_ref, rel=1e-5)
+    assert change == pytest.approx(np.linalg.norm(f64 - p64) / np.linalg.norm(p64), rel=1e-6)
+    assert rel(z, (f64 + 0.7 * (f64 - p64)).astype(np.float32)) < RTOL32
+    # Without the change asked for it is left out; a zero momentum makes z = f.
+    assert _momentum_pass(z, f, f_prev, 0.0, bm, None, np.empty_like(f), False)[1] is None
+    assert np.array_equal(z, f)
 
 
 @pytest.mark.parametrize("isotropic", [True, False])
