@@ -26,6 +26,11 @@ methods only, so that a prior overrides one only to make it faster or to keep it
   problem to the next (a video's frames);
 - :meth:`PriorBase.state_change` -- how far what the prior re-estimates from the iterate (a
   spectral basis) moved at its last call: the solvers' stopping rule waits for it too;
+- :meth:`PriorBase.scaled_prox` -- :math:`q \odot \mathrm{prox}_{s\varphi}(q \odot v)`
+  for a factor per band (FISTA's band metric on a ``band_weighted`` prior), which a prior may
+  make without weighing the cube twice;
+- :meth:`PriorBase.prox_value` -- :math:`\varphi` of the last prox's result, where the prox
+  has it at hand (FISTA's restart test then evaluates no :meth:`value` of its own);
 - :meth:`PriorBase.stages` -- a plug-and-play prior that starts from another prior's solve
   (:func:`recon.solvers.solve` runs the two stages).
 
@@ -51,7 +56,7 @@ from recon import kernels
 from recon.errors import InputError
 
 __all__ = ["Prior", "PriorBase", "check_prior", "gradient_prox", "combine_value", "refine",
-           "describe", "state_change", "stages", "linear_combination", "solver_algorithm"]
+           "describe", "state_change", "prox_value", "scaled_prox", "stages", "linear_combination", "solver_algorithm"]
 
 
 @runtime_checkable
@@ -153,6 +158,21 @@ class PriorBase:
         tolerance as well as the iterate's relative change."""
         return None
 
+    def scaled_prox(self, v: np.ndarray, step: float, weights, out: np.ndarray | None = None
+                    ) -> np.ndarray:
+        r""":math:`q \odot \mathrm{prox}_{s\varphi}(q \odot v)` for a factor :math:`q_l > 0`
+        per band (``weights``, shape ``(L,)``; None: the plain prox), into ``out`` if given.
+        ``v`` may be overwritten.  The default weighs ``v`` in place, calls :meth:`prox` and
+        weighs its result."""
+        return _scaled_prox_default(self, v, step, weights, out)
+
+    def prox_value(self) -> float | None:
+        """:math:`\varphi` of the result of the last :meth:`prox` call, where the prox has it at
+        hand for less than a :meth:`value` call would cost (the subspace prior: TV of its
+        coefficient images, without projecting the cube again); None (the default) where it
+        does not, or before any call.  Equal to ``value`` of that result up to rounding."""
+        return None
+
     def stages(self) -> tuple[Prior, int] | None:
         """A prior solved in two stages: ``(first, n)``, the prior of the first stage, which
         the solver runs to its stopping rule (or its iterations), and ``n`` iterations of this
@@ -195,6 +215,30 @@ def state_change(prior) -> float | None:
     fn = getattr(prior, "state_change", None)
     change = None if fn is None else fn()
     return None if change is None else float(change)
+
+
+def scaled_prox(prior, v, step, weights, out=None):
+    """:meth:`PriorBase.scaled_prox` of ``prior``; its default for a bare prior."""
+    fn = getattr(prior, "scaled_prox", None)
+    return _scaled_prox_default(prior, v, step, weights, out) if fn is None else \
+        fn(v, step, weights, out)
+
+
+def _scaled_prox_default(prior, v, step, weights, out):
+    if weights is None:
+        return prior.prox(v, step, out=out)
+    q = np.asarray(weights, dtype=v.dtype).reshape(-1, *([1] * (v.ndim - 1)))
+    np.multiply(v, q, out=v)
+    out = prior.prox(v, step, out=out)
+    out *= q
+    return out
+
+
+def prox_value(prior) -> float | None:
+    """:meth:`PriorBase.prox_value` of ``prior``; None for a bare prior."""
+    fn = getattr(prior, "prox_value", None)
+    value = None if fn is None else fn()
+    return None if value is None else float(value)
 
 
 def stages(prior) -> tuple[Prior, int] | None:

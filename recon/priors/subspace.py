@@ -75,7 +75,8 @@ def symmetric_eigh(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.linalg.eigh(a)
 
 
-def leading_basis(v: np.ndarray, rank: int, previous: np.ndarray | None = None) -> np.ndarray:
+def leading_basis(v: np.ndarray, rank: int, previous: np.ndarray | None = None,
+                  weights: np.ndarray | None = None) -> np.ndarray:
     r"""The ``rank`` leading eigenvectors of the band Gram matrix :math:`v v^\top`.
 
     Parameters
@@ -86,6 +87,9 @@ def leading_basis(v: np.ndarray, rank: int, previous: np.ndarray | None = None) 
     previous : ndarray, shape (L, k), optional
         The basis of the previous call: each new vector takes the sign that agrees with its
         predecessor, so coefficient images (and any warm state kept on them) do not flip.
+    weights : ndarray, shape (L,), optional
+        A factor :math:`q_l` per band: the basis of the weighted cube :math:`q \odot v`,
+        whose Gram matrix :math:`Q v v^\top Q` is taken from :math:`v`'s (no weighted copy).
 
     Returns
     -------
@@ -93,7 +97,11 @@ def leading_basis(v: np.ndarray, rank: int, previous: np.ndarray | None = None) 
         Orthonormal columns, by decreasing eigenvalue.  Without ``previous`` each column's
         sign makes its sum non-negative.
     """
-    _, vecs = symmetric_eigh(band_gram(v))
+    gram = band_gram(v)
+    if weights is not None:
+        q = np.asarray(weights, dtype=np.float64).reshape(-1)
+        gram = gram * np.outer(q, q)
+    _, vecs = symmetric_eigh(gram)
     basis = np.ascontiguousarray(vecs[:, ::-1][:, :rank])
     if previous is not None and previous.shape == basis.shape:
         signs = np.sign(np.einsum("lk,lk->k", basis, previous))
@@ -239,6 +247,7 @@ class SubspaceTV(_Subspace):
         self.isotropic = bool(isotropic)
         self.threads = threads
         self._tv: TVProx | None = None
+        self._coeffs: np.ndarray | None = None   # the last prox's coefficient images
 
     def describe(self) -> dict:
         return {"prior": self.name, "weight": self.weight, "rank": self.rank,
@@ -247,13 +256,40 @@ class SubspaceTV(_Subspace):
     def prox(self, v: np.ndarray, step: float, out: np.ndarray | None = None) -> np.ndarray:
         r""":math:`E\,\mathrm{prox}_{s\lambda\mathrm{TV}}(E^\top v)`, into ``out`` if given
         (``out`` may be ``v``)."""
+        return self.scaled_prox(v, step, None, out)
+
+    def scaled_prox(self, v: np.ndarray, step: float, weights, out: np.ndarray | None = None
+                    ) -> np.ndarray:
+        r""":math:`q \odot \mathrm{prox}_{s\varphi}(q \odot v)` for a factor :math:`q_l` per
+        band (``weights``; None: the plain prox), into ``out`` if given (``out`` may be ``v``).
+
+        With :math:`Q = \mathrm{diag}(q)` and :math:`E` the basis of :math:`Qv` (from
+        :math:`Q v v^\top Q`), it is :math:`(QE)\,\mathrm{prox}_{s\lambda\mathrm{TV}}
+        \bigl((QE)^\top v\bigr)`: the factors ride on the :math:`L \times k` basis, and no
+        pass over the cube weighs it (the band metric, :mod:`recon.solvers.band_metric`)."""
         v, step, rank = self._check(v, step)
-        e, z = self._coefficients(v, rank)
+        v = np.ascontiguousarray(v)
+        previous = self.basis
+        self.basis = leading_basis(v, rank, previous, weights)
+        self._change = basis_change(previous, self.basis)
+        e = self.basis if weights is None else \
+            self.basis * np.asarray(weights, dtype=np.float64).reshape(-1, 1)
+        e = e.astype(v.dtype)
+        z = project(e, v)
         if self.weight > 0 and step > 0:
             if self._tv is None or self._tv.shape != z.shape or self._tv.dtype != z.dtype:
                 self._tv = TVProx(z.shape, z.dtype, self.isotropic, self.threads)
             z = self._tv(z, step * self.weight, self.tv_iters, warm=True, out=z)
+        self._coeffs = z
         return expand(e, z, out)
+
+    def prox_value(self) -> float | None:
+        r""":math:`\lambda\,\mathrm{TV}(z)` of the last prox's coefficient images :math:`z`:
+        the value of its result :math:`Ez` (whose projection :math:`E^\top E z` is :math:`z`,
+        the basis orthonormal), without projecting the cube again; None before a call."""
+        if self._coeffs is None:
+            return None
+        return self.weight * tv_norm(self._coeffs, self.isotropic)
 
     def value(self, x: np.ndarray) -> float:
         r""":math:`\lambda\,\mathrm{TV}(E^\top x)` with the basis of the last call (of ``x``
@@ -268,8 +304,9 @@ class SubspaceTV(_Subspace):
         return self.weight * tv_norm(np.ascontiguousarray(z), self.isotropic)
 
     def reset(self) -> None:
-        """Forget the basis and the TV dual (a new problem begins)."""
+        """Forget the basis, the TV dual and the last coefficients (a new problem begins)."""
         super().reset()
+        self._coeffs = None
         if self._tv is not None:
             self._tv.reset()
 

@@ -188,7 +188,8 @@ class BandMetric:
         self.weighted = bool(weighted)
         self._w = (d / self.dmax).astype(dtype)[:, None, None]      # 1/r_l, in (0, 1]
         self._r = (self.dmax / d).astype(dtype)[:, None, None]      # r_l >= 1
-        self._sqrt_r = np.sqrt(self.dmax / d).astype(dtype)[:, None, None]   # 1/w_l
+        self._q = np.sqrt(self.dmax / d)                                     # 1/w_l
+        self._sqrt_r = self._q.astype(dtype)[:, None, None]
 
     def scaled_step(self, op: LinearOperator, r: np.ndarray, z: np.ndarray,
                     out: np.ndarray) -> np.ndarray:
@@ -200,14 +201,14 @@ class BandMetric:
 
     def prox(self, prior, v_scaled: np.ndarray, out: np.ndarray) -> np.ndarray:
         r"""``out`` :math:`= \mathrm{prox}^D_\varphi(v)` from ``v_scaled`` :math:`= v/r`
-        (:meth:`scaled_step`); ``out`` may be ``v_scaled``, which is overwritten.  Weighted:
-        :math:`w^{-1}\odot\mathrm{prox}_{\sigma_0\varphi}(w\odot v)`, with
-        :math:`w \odot v = \sqrt r \odot (v/r)` and :math:`w^{-1} = \sqrt r`."""
+        (:meth:`scaled_step`); ``out`` may be ``v_scaled``, which may be overwritten.
+        Weighted: :math:`w^{-1}\odot\mathrm{prox}_{\sigma_0\varphi}(w\odot v)`, with
+        :math:`w \odot v = \sqrt r \odot (v/r)` and :math:`w^{-1} = \sqrt r`: the prior's
+        :meth:`~recon.priors.base.PriorBase.scaled_prox` with :math:`q = \sqrt r`."""
         if self.weighted:
-            np.multiply(v_scaled, self._sqrt_r, out=v_scaled)
-            prior.prox(v_scaled, self.step, out=out)
-            out *= self._sqrt_r
-            return out
+            from recon.priors.base import scaled_prox
+
+            return scaled_prox(prior, v_scaled, self.step, self._q, out)
         prior.prox(v_scaled, self.step, out=out)
         out *= self._r
         return out
@@ -221,6 +222,18 @@ class BandMetric:
         else:
             v = prior.value(x)
         return None if v is None else float(v)
+
+    def prox_value(self, prior, x: np.ndarray, work: np.ndarray | None = None) -> float | None:
+        r""":meth:`value` of :math:`x` = :meth:`prox`'s last result: the prior's own
+        :meth:`~recon.priors.base.PriorBase.prox_value` where it has one and the prior is
+        weighted (its prox's result is then :math:`w\odot x`), else :meth:`value`."""
+        if self.weighted:
+            from recon.priors.base import prox_value
+
+            v = prox_value(prior)
+            if v is not None:
+                return v
+        return self.value(prior, x, work)
 
     def restart_dot(self, z: np.ndarray, f: np.ndarray, f_prev: np.ndarray,
                     threads: int | None = None) -> float:

@@ -45,7 +45,7 @@ from recon import kernels
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
 from recon.priors.base import describe as prior_info
-from recon.priors.base import state_change
+from recon.priors.base import prox_value, state_change
 from recon.solvers.base import (IterationLoop, SolverResult, check_problem, data_misfit,
                                 operator_norm_sq, prior_value, resolve_prior)
 
@@ -181,7 +181,13 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
             misfit, r_new = data_misfit(op, g, f)
             r_f_prev, r_f = r_f, r_new
             # `step` is free here (the prox has read it; the change test below reuses it).
-            value = prior_value(prior, f) if bm is None else bm.value(prior, f, work=step)
+            # The prox's own value where the prior keeps it (f is its result), else a value
+            # call.
+            if bm is None:
+                value = prox_value(prior)
+                value = prior_value(prior, f) if value is None else value
+            else:
+                value = bm.prox_value(prior, f, work=step)
             obj = None if value is None else misfit + value
         # The momentum step is taken in the same pass as the restart test's inner product
         # and the relative change; when the inner product then asks for a restart, z is

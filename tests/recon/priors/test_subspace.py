@@ -169,6 +169,43 @@ def test_value_is_weighted_tv_of_the_coefficients():
     assert prior.value(v) == pytest.approx(0.7 * tv_norm(z), rel=1e-5)
 
 
+def test_prox_value_is_the_value_of_the_prox_result():
+    # The prior's value of its last prox's result, from the coefficient images it already
+    # has: the value of that result (float32 rounding apart); nothing before a call or after
+    # a reset.
+    v = low_rank_cube(noise=0.1)
+    prior = SubspaceTV(0.3, rank=4)
+    assert prior.prox_value() is None
+    x = prior.prox(v, 0.5)
+    assert prior.prox_value() == pytest.approx(prior.value(x), rel=1e-5)
+    x = prior.prox(v + 0.05, 0.5, out=v)           # in place: still the last result's
+    assert prior.prox_value() == pytest.approx(prior.value(x), rel=1e-5)
+    prior.reset()
+    assert prior.prox_value() is None
+
+
+def test_scaled_prox_is_the_prox_of_the_weighted_cube():
+    # q * prox(q * v) with the factors carried on the basis: the weighted cube's basis, the
+    # same result and value as weighing the cube, over two calls (the warm dual and the
+    # basis's signs carried).
+    from recon.priors.base import scaled_prox
+
+    rng = np.random.default_rng(3)
+    q = rng.uniform(1.0, 4.0, 12)
+    fast, slow = SubspaceTV(0.3, rank=4), SubspaceTV(0.3, rank=4)
+    for seed in (0, 1):
+        v = low_rank_cube(noise=0.1, seed=seed)
+        got = fast.scaled_prox(v.copy(), 0.5, q)
+        want = q[:, None, None] * slow.prox(q[:, None, None].astype(np.float32) * v, 0.5)
+        np.testing.assert_allclose(got, want, rtol=2e-5, atol=2e-5 * np.abs(want).max())
+        np.testing.assert_allclose(fast.basis, slow.basis, atol=1e-5)
+        assert fast.prox_value() == pytest.approx(slow.prox_value(), rel=1e-5)
+    # The module's helper takes the prior's own; without factors it is the plain prox.
+    v = low_rank_cube(noise=0.1, seed=2)
+    np.testing.assert_array_equal(scaled_prox(SubspaceTV(0.3, rank=4), v.copy(), 0.5, None),
+                                  SubspaceTV(0.3, rank=4).prox(v.copy(), 0.5))
+
+
 def test_default_rank_follows_the_bands():
     assert default_rank(31) == 8
     assert default_rank(28) == 7

@@ -199,6 +199,31 @@ def test_subspace_tv_runs_weighted(weak_band_op):
     assert not tv.info["band_weighted"]
 
 
+def test_subspace_tv_takes_its_value_from_the_prox(weak_band_op, monkeypatch):
+    # The restart test's prior value comes from the prox's coefficient images (one projection
+    # an iteration, not two): the same iterates and objective as with a value call.
+    from recon.priors import subspace
+
+    g = weak_band_op.forward(_truth())
+    calls = []
+    project = subspace.project
+    monkeypatch.setattr(subspace, "project", lambda e, v: calls.append(1) or project(e, v))
+
+    def run():
+        sub = make_prior("subspace-tv", shape=SHAPE, dtype=np.float64, weight=0.02, rank=2)
+        return fista_tv(weak_band_op, g, iters=30, prior=sub, metric="auto", objective=True)
+
+    fast = run()
+    assert len(calls) == 30
+    monkeypatch.setattr(subspace.SubspaceTV, "prox_value", lambda self: None)
+    calls.clear()
+    slow = run()
+    assert len(calls) == 60
+    assert fast.iterations == slow.iterations
+    np.testing.assert_allclose(fast.objective, slow.objective, rtol=1e-9)
+    np.testing.assert_allclose(fast.x, slow.x, rtol=1e-7, atol=1e-9)
+
+
 def test_bad_options(weak_band_op):
     g = weak_band_op.forward(_truth())
     with pytest.raises(InputError, match="metric must be"):
