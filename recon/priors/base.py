@@ -56,7 +56,8 @@ from recon import kernels
 from recon.errors import InputError
 
 __all__ = ["Prior", "PriorBase", "check_prior", "gradient_prox", "combine_value", "refine",
-           "describe", "state_change", "prox_value", "scaled_prox", "stages", "linear_combination", "solver_algorithm"]
+           "describe", "state_change", "prox_value", "scaled_prox", "stages",
+           "linear_combination", "solver_algorithm"]
 
 
 @runtime_checkable

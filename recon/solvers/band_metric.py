@@ -30,9 +30,10 @@ keeps every guarantee of the scalar step (Combettes & Vũ 2014, variable metric
 forward-backward) and minimises the same objective.  :math:`\alpha` is estimated
 (:func:`_metric_norm_sq`: 15 power iterations, times 1.02, as the scalar step's
 :math:`\|H\|^2`); a power iteration approaches the top eigenvalue from below, and on the
-calibrated `paper` operators the estimate falls 1–4 % short of it (docs/speed_product.md), a
-step that long the momentum's adaptive restart keeps stable.  :math:`p = 1` equalises the bands' column
-norms; :math:`p = 1/2` (the default, :data:`DEFAULT_EXPONENT`) goes half way, which converges
+calibrated `paper` operators the estimate falls short of it (docs/speed_product.md, "The
+step's estimate"): the step is then longer than the majoriser's, and the momentum's adaptive
+restart keeps it stable.  :math:`p = 1` equalises the bands' column norms; :math:`p = 1/2`
+(the default, :data:`DEFAULT_EXPONENT`) goes half way, which converges
 faster early on the calibrated models (docs/speed_product.md).
 
 That prox is exact and cheap when the prior separates over the bands and is positively
