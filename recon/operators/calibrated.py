@@ -298,7 +298,7 @@ class CalibratedCassi(LinearOperator):
         views = self._kernel_arrays()
         with kernels.threads():
             # The warped views gather from the pixel-major cube, laid out once for all of
-            # them (a transient copy of the cube).
+            # them.
             xt = _NO_PIXELS
             if not all(v[0] for v in views):
                 # The buffer is kept between calls: a fresh cube-sized array costs its page

@@ -185,13 +185,18 @@ class _Subspace(PriorBase):
             raise InputError(f"rank {rank} exceeds the {v.shape[0]} bands")
         return v, step, rank
 
-    def _coefficients(self, v: np.ndarray, rank: int) -> tuple[np.ndarray, np.ndarray]:
-        """(E, z): the re-estimated basis (v's dtype) and z = Eᵀ v, shape (k, H, W)."""
+    def _coefficients(self, v: np.ndarray, rank: int, weights=None
+                      ) -> tuple[np.ndarray, np.ndarray]:
+        """(E, z): the re-estimated basis (v's dtype) and z = Eᵀ v, shape (k, H, W); with a
+        factor q per band (``weights``) the basis E of q ⊙ v (:func:`leading_basis`), and
+        (QE, (QE)ᵀ v) in its place."""
         v = np.ascontiguousarray(v)
         previous = self.basis
-        self.basis = leading_basis(v, rank, previous)
+        self.basis = leading_basis(v, rank, previous, weights)
         self._change = basis_change(previous, self.basis)
-        e = self.basis.astype(v.dtype)
+        e = self.basis if weights is None else \
+            self.basis * np.asarray(weights, dtype=np.float64).reshape(-1, 1)
+        e = e.astype(v.dtype)
         return e, project(e, v)
 
     def state_change(self) -> float | None:
@@ -268,14 +273,7 @@ class SubspaceTV(_Subspace):
         \bigl((QE)^\top v\bigr)`: the factors ride on the :math:`L \times k` basis, and no
         pass over the cube weighs it (the band metric, :mod:`recon.solvers.band_metric`)."""
         v, step, rank = self._check(v, step)
-        v = np.ascontiguousarray(v)
-        previous = self.basis
-        self.basis = leading_basis(v, rank, previous, weights)
-        self._change = basis_change(previous, self.basis)
-        e = self.basis if weights is None else \
-            self.basis * np.asarray(weights, dtype=np.float64).reshape(-1, 1)
-        e = e.astype(v.dtype)
-        z = project(e, v)
+        e, z = self._coefficients(v, rank, weights)
         if self.weight > 0 and step > 0:
             if self._tv is None or self._tv.shape != z.shape or self._tv.dtype != z.dtype:
                 self._tv = TVProx(z.shape, z.dtype, self.isotropic, self.threads)
