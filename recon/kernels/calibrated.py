@@ -358,9 +358,10 @@ def _gather_add(z, shift, indptr, indices, data, yy, w, acc, t):
 
 @jit(parallel=True)
 def adjoint_views(y, cm, a, c0, c1, sub, ident, wvs, indptr, indices, data, vlo, vhi, rows,
-                  zrows, lo, hi, has_base, base, scale, out):
+                  zrows, lo, hi, has_base, base, weights, scale, out):
     r""":math:`H^\top y` of every view in one pass over the cube (overwrites ``out``), or
-    :math:`b + s H^\top y` with ``has_base``.
+    :math:`b + s H^\top y` with ``has_base`` (:math:`q_l b_l + s (H^\top y)_l` with
+    ``weights`` :math:`q`).
 
     Each task is ``rows`` cube rows: for every view it makes :math:`z` on the view rows that
     those cube rows gather from (``vlo[k, task] .. vhi[k, task] - 1``, at most ``zrows``) into a
@@ -395,6 +396,9 @@ def adjoint_views(y, cm, a, c0, c1, sub, ident, wvs, indptr, indices, data, vlo,
     has_base : bool
     base : ndarray, shape (L, H, W)
         :math:`b` (read with ``has_base``).
+    weights : ndarray, shape (L,) or (0,)
+        :math:`q`, a factor per band of the base (the band metric's weighted base); empty:
+        none (the base as it is, not multiplied by ones, so that the sums are unchanged).
     scale : float
     out : ndarray, shape (L, H, W)
         May be ``base``: each task reads its rows of ``base`` before it writes them.
@@ -402,6 +406,7 @@ def adjoint_views(y, cm, a, c0, c1, sub, ident, wvs, indptr, indices, data, vlo,
     n_views = y.shape[0]
     n_bands, h, w = out.shape
     wm = y.shape[2]
+    weighted = weights.shape[0] > 0
     wmax = 1
     for k in range(n_views):
         wmax = max(wmax, wvs[k])
@@ -432,7 +437,12 @@ def adjoint_views(y, cm, a, c0, c1, sub, ident, wvs, indptr, indices, data, vlo,
             ar = acc[yy - y0]
             for l in range(n_bands):
                 o = out[l, yy]
-                if has_base:
+                if has_base and weighted:
+                    b = base[l, yy]
+                    q = weights[l]
+                    for x_ in range(w):
+                        o[x_] = q * b[x_] + scale * ar[x_, l]
+                elif has_base:
                     b = base[l, yy]
                     for x_ in range(w):
                         o[x_] = b[x_] + scale * ar[x_, l]

@@ -26,25 +26,95 @@ def blocks(n: int) -> int:
     return (n + _BLOCK - 1) // _BLOCK
 
 
+#: Pixels of a run whose products a tile of :func:`gram` sums in the working precision
+#: before it adds them to its float64 sums.
+_RUN = 512
+
+
+@jit(refcount=False)
+def _put(acc, a, b, s):
+    """``acc[a, b] += s`` where (a, b) is an entry of the lower triangle."""
+    n = acc.shape[0]
+    if a < n and b <= a:
+        acc[a, b] += s
+
+
+@jit(refcount=False)
+def _gram_tile(v, a0, b0, r0, r1, acc):
+    r"""The 4 × 4 entries (a0 .. a0+3, b0 .. b0+3) of :math:`v v^\top` over pixels
+    ``r0 .. r1 - 1``, summed in ``v``'s precision and added to ``acc`` (float64; the lower
+    triangle only).  Rows past the last band repeat the last one and are not added: every
+    pixel's eight values are loaded once for sixteen products, where a pair at a time loads
+    two for one."""
+    last = v.shape[0] - 1
+    x0, x1 = v[a0, r0:r1], v[min(a0 + 1, last), r0:r1]
+    x2, x3 = v[min(a0 + 2, last), r0:r1], v[min(a0 + 3, last), r0:r1]
+    y0, y1 = v[b0, r0:r1], v[min(b0 + 1, last), r0:r1]
+    y2, y3 = v[min(b0 + 2, last), r0:r1], v[min(b0 + 3, last), r0:r1]
+    z = v.dtype.type(0)
+    s00 = s01 = s02 = s03 = s10 = s11 = s12 = s13 = z
+    s20 = s21 = s22 = s23 = s30 = s31 = s32 = s33 = z
+    for i in range(r1 - r0):
+        p0, p1, p2, p3 = x0[i], x1[i], x2[i], x3[i]
+        q0, q1, q2, q3 = y0[i], y1[i], y2[i], y3[i]
+        s00 += p0 * q0
+        s01 += p0 * q1
+        s02 += p0 * q2
+        s03 += p0 * q3
+        s10 += p1 * q0
+        s11 += p1 * q1
+        s12 += p1 * q2
+        s13 += p1 * q3
+        s20 += p2 * q0
+        s21 += p2 * q1
+        s22 += p2 * q2
+        s23 += p2 * q3
+        s30 += p3 * q0
+        s31 += p3 * q1
+        s32 += p3 * q2
+        s33 += p3 * q3
+    _put(acc, a0, b0, s00)
+    _put(acc, a0, b0 + 1, s01)
+    _put(acc, a0, b0 + 2, s02)
+    _put(acc, a0, b0 + 3, s03)
+    _put(acc, a0 + 1, b0, s10)
+    _put(acc, a0 + 1, b0 + 1, s11)
+    _put(acc, a0 + 1, b0 + 2, s12)
+    _put(acc, a0 + 1, b0 + 3, s13)
+    _put(acc, a0 + 2, b0, s20)
+    _put(acc, a0 + 2, b0 + 1, s21)
+    _put(acc, a0 + 2, b0 + 2, s22)
+    _put(acc, a0 + 2, b0 + 3, s23)
+    _put(acc, a0 + 3, b0, s30)
+    _put(acc, a0 + 3, b0 + 1, s31)
+    _put(acc, a0 + 3, b0 + 2, s32)
+    _put(acc, a0 + 3, b0 + 3, s33)
+
+
 @jit(parallel=True)
 def gram(v, partial):
     r"""Partial Gram matrices :math:`\sum_{n \in b} v_{:,n} v_{:,n}^\top` of each pixel block
     :math:`b` into ``partial`` (``(blocks, L, L)`` float64; the caller sums them in order).
-    ``v``: ``(L, N)`` float32, contiguous."""
+    ``v``: ``(L, N)`` float32, contiguous.
+
+    Within a block, runs of :data:`_RUN` pixels are summed in ``v``'s precision by tiles of
+    4 × 4 band pairs (:func:`_gram_tile`) and the runs in float64: the error is that of a
+    512-term float32 sum, about :math:`10^{-7}` of the entries, far below what moves a
+    leading eigenvector."""
     n_bands, n = v.shape
     for blk in prange((n + _BLOCK - 1) // _BLOCK):
         lo = blk * _BLOCK
         hi = min(n, lo + _BLOCK)
         acc = partial[blk]
+        acc[:, :] = 0.0
+        for r0 in range(lo, hi, _RUN):
+            r1 = min(hi, r0 + _RUN)
+            for a0 in range(0, n_bands, 4):
+                for b0 in range(0, a0 + 1, 4):
+                    _gram_tile(v, a0, b0, r0, r1, acc)
         for a in range(n_bands):
-            va = v[a, lo:hi]
-            for b in range(a + 1):
-                vb = v[b, lo:hi]
-                s = 0.0
-                for i in range(hi - lo):
-                    s += va[i] * vb[i]
-                acc[a, b] = s
-                acc[b, a] = s
+            for b in range(a):
+                acc[b, a] = acc[a, b]
 
 
 @jit(parallel=True)

@@ -46,8 +46,10 @@ class LinearOperator:
         return self._adjoint(y)
 
     def adjoint_add(self, y: np.ndarray, base: np.ndarray, scale: float = 1.0,
-                    out: np.ndarray | None = None) -> np.ndarray:
-        r"""Return :math:`b + s\,A^\top y`, the gradient step of the solvers.
+                    out: np.ndarray | None = None,
+                    base_weights: np.ndarray | None = None) -> np.ndarray:
+        r"""Return :math:`b + s\,A^\top y`, the gradient step of the solvers, or
+        :math:`q \odot b + s\,A^\top y` with ``base_weights``.
 
         Parameters
         ----------
@@ -58,9 +60,14 @@ class LinearOperator:
             :math:`s`.
         out : ndarray, shape ``ishape``, optional
             Where to write the result; may be ``base``.
+        base_weights : ndarray, shape ``(ishape[0],)``, optional
+            :math:`q`, one factor per slice of the first axis (per band of a cube): the band
+            metric's weighted base (:mod:`recon.solvers.band_metric`), which an operator with
+            a fused kernel applies as it writes the result instead of in a pass of its own.
 
         Operators with a fused kernel override this to add the adjoint as they compute it.
         """
+        base = weighted_base(base, base_weights)
         r = np.asarray(self.adjoint(y)).astype(base.dtype, copy=False)
         if scale != 1.0:
             r = np.multiply(r, scale, out=None if np.may_share_memory(r, y) else r)
@@ -148,11 +155,12 @@ class ScaledOperator(LinearOperator):
     def _adjoint(self, y):
         return self._scaled(self.inner.adjoint(y))
 
-    def adjoint_add(self, y, base, scale=1.0, out=None):
+    def adjoint_add(self, y, base, scale=1.0, out=None, base_weights=None):
         r""":math:`b + t\,(sA)^\top y = b + (ts)\,A^\top y`: the inner operator's own
         gradient step (fused where it has one) with the scales multiplied, not a scaled copy
         of :math:`A^\top y` added in two more passes."""
-        return self.inner.adjoint_add(y, base, float(scale) * self.scale, out)
+        return self.inner.adjoint_add(y, base, float(scale) * self.scale, out,
+                                      base_weights=base_weights)
 
     def row_norms_sq(self):
         rn = np.asarray(self.inner.row_norms_sq())
@@ -205,3 +213,18 @@ def dot_test(op: LinearOperator, rng: np.random.Generator | None = None,
     lhs = float(np.vdot(op.forward(x).astype(np.float64), y))
     rhs = float(np.vdot(x, op.adjoint(y).astype(np.float64)))
     return abs(lhs - rhs) / max(abs(lhs), abs(rhs), 1e-30)
+
+
+def weighted_base(base: np.ndarray, weights: np.ndarray | None) -> np.ndarray:
+    r""":math:`q \odot b`, ``weights`` :math:`q` one factor per slice of ``base``'s first axis
+    (a new array in ``base``'s dtype), or ``base`` itself without weights: the reference of
+    :meth:`LinearOperator.adjoint_add`'s ``base_weights`` that fused kernels are tested
+    against."""
+    if weights is None:
+        return base
+    base = np.asarray(base)
+    q = np.asarray(weights, dtype=base.dtype).reshape(-1)
+    if q.shape != base.shape[:1]:
+        raise ValueError(f"base_weights: one weight per slice of the base's first axis "
+                         f"({base.shape[0]}), got shape {np.shape(weights)}")
+    return base * q.reshape((-1,) + (1,) * (base.ndim - 1))

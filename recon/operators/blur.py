@@ -108,12 +108,13 @@ class BlurredOperator(LinearOperator):
     def _adjoint(self, y):
         return self.op.adjoint(convolve_views(y, self._flipped))
 
-    def adjoint_add(self, y, base, scale=1.0, out=None):
+    def adjoint_add(self, y, base, scale=1.0, out=None, base_weights=None):
         # The inner operator's own (fused) gradient step, on the correlated measurement.
         y = np.asarray(y)
         if y.shape != self.oshape:
             raise ValueError(f"{type(self).__name__}: input shape {y.shape} != {self.oshape}")
-        return self.op.adjoint_add(convolve_views(y, self._flipped), base, scale, out)
+        return self.op.adjoint_add(convolve_views(y, self._flipped), base, scale, out,
+                                   base_weights=base_weights)
 
     def band_forward(self, band: int, image) -> np.ndarray:
         r""":math:`P * (A f)` for the cube that is ``image`` in band ``band`` and zero

@@ -34,7 +34,7 @@ import numpy as np
 
 from recon import kernels
 from recon.errors import InputError
-from recon.operators.base import LinearOperator
+from recon.operators.base import LinearOperator, weighted_base
 from recon.operators.dispersion import as_offsets, shift_row_norms, split, work_dtype
 from recon.operators.mask import InPrecision, as_mask
 from recon.operators.warp import as_warps, cube_shape_of
@@ -200,9 +200,12 @@ class CalibratedCassi(LinearOperator):
                 out += warp.apply_adjoint(tmp)
         return out
 
-    def adjoint_add(self, y, base, scale=1.0, out=None):
-        r""":math:`b + s H^\top y` with the adjoint added as it is computed (float32 kernels;
-        see :meth:`LinearOperator.adjoint_add <recon.operators.base.LinearOperator.adjoint_add>`).
+    def adjoint_add(self, y, base, scale=1.0, out=None, base_weights=None):
+        r""":math:`b + s H^\top y` (or :math:`q \odot b + s H^\top y`) with the adjoint added
+        as it is computed (float32 kernels; see :meth:`LinearOperator.adjoint_add
+        <recon.operators.base.LinearOperator.adjoint_add>`): in the one-pass kernel the
+        weights are applied as each row of the result is written, view by view they make the
+        weighted base first.
         """
         base = np.asarray(base)
         dt = base.dtype
@@ -210,17 +213,26 @@ class CalibratedCassi(LinearOperator):
                 and base.flags.c_contiguous
                 and (out is None or (out.dtype == dt and out.flags.c_contiguous
                                      and out.shape == self.ishape))):
-            return super().adjoint_add(y, base, scale, out)
+            return super().adjoint_add(y, base, scale, out, base_weights=base_weights)
         y = np.asarray(y)
         if y.shape != self.oshape:
             raise ValueError(f"{type(self).__name__}: input shape {y.shape} != {self.oshape}")
+        weights = None
+        if base_weights is not None:
+            if self._fused_plan():
+                weights = np.asarray(base_weights, dtype=dt).reshape(-1)
+                if weights.shape != (self.n_bands,):
+                    raise ValueError(f"base_weights: one weight per band ({self.n_bands}), "
+                                     f"got shape {np.shape(base_weights)}")
+            else:
+                base = weighted_base(base, base_weights)
         target = out
         # View by view, views after the first add to the output, so the output cannot be the
         # base then (the one-pass kernel reads each row of the base before writing it).
         if out is None or (self.n_views > 1 and np.may_share_memory(out, base)
                            and not self._fused_plan()):
             target = np.empty(self.ishape, dtype=dt)
-        self._adjoint_kernel(np.ascontiguousarray(y, dtype=dt), base, scale, target)
+        self._adjoint_kernel(np.ascontiguousarray(y, dtype=dt), base, scale, target, weights)
         if out is not None and target is not out:
             np.copyto(out, target)
             return out
@@ -371,23 +383,28 @@ class CalibratedCassi(LinearOperator):
                 "lo": max(0, -int(a.min())), "hi": hi}
         return self._plan
 
-    def _adjoint_kernel(self, y, base, scale, out):
-        r"""``out`` :math:`= H^\top y` (``base`` None) or :math:`b + s H^\top y`: all views in
-        one pass (:func:`recon.kernels.calibrated.adjoint_views`; ``out`` may be ``base``),
-        or, where a warp spreads a cube row over too many view rows, view by view (``out``
-        may then be ``base`` only for one view)."""
+    def _adjoint_kernel(self, y, base, scale, out, weights=None):
+        r"""``out`` :math:`= H^\top y` (``base`` None) or :math:`b + s H^\top y`, or
+        :math:`q \odot b + s H^\top y` with ``weights`` :math:`q` (one a band, the one-pass
+        kernel only): all views in one pass (:func:`recon.kernels.calibrated.adjoint_views`;
+        ``out`` may be ``base``), or, where a warp spreads a cube row over too many view rows,
+        view by view (``out`` may then be ``base`` only for one view)."""
         from recon.kernels import calibrated as kcal
 
         plan = self._fused_plan()
         if plan:
             b = out if base is None else np.ascontiguousarray(base, dtype=np.float32)
+            q = (np.ones(0, np.float32) if weights is None
+                 else np.ascontiguousarray(weights, dtype=np.float32))
             with kernels.threads():
                 kcal.adjoint_views(y, self.mask_images, plan["a"], plan["c0"], plan["c1"],
                                    plan["sub"], plan["ident"], plan["wvs"], plan["indptr"],
                                    plan["indices"], plan["data"], plan["vlo"], plan["vhi"],
                                    plan["rows"], plan["zrows"], plan["lo"], plan["hi"],
-                                   base is not None, b, np.float32(scale), out)
+                                   base is not None, b, q, np.float32(scale), out)
             return out
+        if weights is not None:
+            raise ValueError("base weights need the one-pass adjoint")
         return self._adjoint_by_view(y, base, scale, out)
 
     def _adjoint_by_view(self, y, base, scale, out):

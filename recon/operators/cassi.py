@@ -36,7 +36,7 @@ import numpy as np
 
 from recon import kernels
 from recon.errors import InputError
-from recon.operators.base import LinearOperator
+from recon.operators.base import LinearOperator, weighted_base
 from recon.operators.dispersion import (
     as_offsets, shift_row_norms, snap, span, split, work_dtype,
 )
@@ -257,12 +257,13 @@ class CassiOperator(LinearOperator):
         self._adjoint_warped(y, out)
         return out
 
-    def adjoint_add(self, y, base, scale=1.0, out=None):
+    def adjoint_add(self, y, base, scale=1.0, out=None, base_weights=None):
         r""":math:`b + s H^\top y` in one pass over the cube when every view is a permutation
-        (see :meth:`LinearOperator.adjoint_add <recon.operators.base.LinearOperator.adjoint_add>`).
+        (see :meth:`LinearOperator.adjoint_add <recon.operators.base.LinearOperator.adjoint_add>`;
+        ``base_weights`` make the weighted base first).
         """
         kp = self._kernel_plan
-        base = np.asarray(base)
+        base = weighted_base(np.asarray(base), base_weights)
         dt = base.dtype
         if not (kp.views.size == self.n_views and kernels.usable(base)
                 and base.shape == self.ishape and base.flags.c_contiguous

@@ -200,9 +200,10 @@ class BandMetric:
                     out: np.ndarray) -> np.ndarray:
         r"""``out`` :math:`= (z + D^{-1}H^\top r)/r_l` per band, i.e.
         :math:`(d_l z_l + (H^\top r)_l)/\max d`: the gradient step already divided by
-        :math:`r` for :meth:`prox` (``out`` may not be ``z``)."""
-        np.multiply(z, self._w, out=out)
-        return op.adjoint_add(r, out, self.step, out=out)
+        :math:`r` for :meth:`prox` (``out`` may not be ``z``).  The weights :math:`1/r_l`
+        on :math:`z` go to the operator's gradient step (``base_weights``), which a fused
+        kernel applies as it writes ``out``: no pass of its own over the cube."""
+        return op.adjoint_add(r, z, self.step, out=out, base_weights=self._w.reshape(-1))
 
     def prox(self, prior, v_scaled: np.ndarray, out: np.ndarray) -> np.ndarray:
         r"""``out`` :math:`= \mathrm{prox}^D_\varphi(v)` from ``v_scaled`` :math:`= v/r`

@@ -12,6 +12,7 @@ import pytest
 from kernel_checks import RTOL32, assert_operator_matches_numpy, rel
 from recon import kernels
 from recon.operators import CalibratedCassi, Flip, HomographyWarp, Translate, dot_test
+from recon.operators.base import weighted_base
 
 pytestmark = pytest.mark.skipif(not kernels.enabled(), reason="Numba kernels switched off")
 
@@ -77,16 +78,20 @@ def test_kernels_have_exact_adjoints(name):
 
 @pytest.mark.parametrize("name", sorted(OPS))
 @pytest.mark.parametrize("where", ["new", "base", "other"])
-def test_adjoint_add_is_base_plus_scaled_adjoint(name, where):
+@pytest.mark.parametrize("weighted", [False, True])
+def test_adjoint_add_is_base_plus_scaled_adjoint(name, where, weighted):
     op = OPS[name]
     rng = np.random.default_rng(24)
     base = rng.standard_normal(op.ishape).astype(np.float32)
     y = rng.standard_normal(op.oshape).astype(np.float32)
+    # The band metric's base weights (recon.solvers.band_metric), applied by the kernel as
+    # it writes the result, against the weighted base made first.
+    q = rng.uniform(0.05, 1.0, op.ishape[0]).astype(np.float32) if weighted else None
     with kernels.numpy_only():
-        want = base + np.float32(0.37) * op.adjoint(y)
+        want = weighted_base(base, q) + np.float32(0.37) * op.adjoint(y)
     b = base.copy()
     out = {"new": None, "base": b, "other": np.empty_like(b)}[where]
-    got = op.adjoint_add(y, b, 0.37, out=out)
+    got = op.adjoint_add(y, b, 0.37, out=out, base_weights=q)
     assert got.dtype == np.float32
     assert got is out if out is not None else got is not b
     assert rel(got, want) < RTOL32
@@ -192,6 +197,11 @@ def test_one_pass_adjoint_matches_the_view_by_view_kernels(name, monkeypatch):
     assert rel(narrow.adjoint(y), op.adjoint(y)) < RTOL32
     out = narrow.adjoint_add(y, b, -0.37, out=b.copy())
     assert rel(out, op.adjoint_add(y, b, -0.37)) < RTOL32
+    # Base weights: the view-by-view path weighs the base first, the one-pass kernel as it
+    # writes.
+    q = rng.uniform(0.05, 1.0, op.ishape[0]).astype(np.float32)
+    out = narrow.adjoint_add(y, b, -0.37, out=b.copy(), base_weights=q)
+    assert rel(out, op.adjoint_add(y, b, -0.37, base_weights=q)) < RTOL32
 
 
 def test_bands_last_is_the_transpose():

@@ -140,6 +140,10 @@ def test_adjoint_add_is_base_plus_scaled_adjoint(name, in_place):
     with kernels.numpy_only():
         ref = op.adjoint_add(y, base, 0.37)
     assert rel(got, ref) < RTOL32
+    # The band metric's base weights: the weighted base, then the same gradient step.
+    q = np.linspace(0.2, 1.0, op.ishape[0]).astype(np.float32)
+    got = op.adjoint_add(y, base.copy(), 0.37, base_weights=q)
+    assert rel(got, q[:, None, None] * base + np.float32(0.37) * op.adjoint(y)) < RTOL32
 
 
 # -- vector updates --------------------------------------------------------------------------

@@ -80,3 +80,22 @@ def test_scaled_operator_adjoint_add_folds_the_scales(dtype):
     out = base.copy()
     assert sop.adjoint_add(y, out, -0.5, out=out) is out
     np.testing.assert_allclose(out, want, rtol=1e-5, atol=1e-5)
+    # Base weights pass through to the inner operator's gradient step.
+    q = np.array([0.25, 1.0, 0.6])
+    got = sop.adjoint_add(y, base, -0.5, base_weights=q)
+    np.testing.assert_allclose(got, want + (q[:, None, None] - 1.0) * base, rtol=1e-5,
+                               atol=1e-5)
+
+
+def test_generic_adjoint_add_weighs_the_base():
+    rng = np.random.default_rng(6)
+    op = MatrixOperator(rng.standard_normal((5, 12)), ishape=(3, 4), oshape=(5,))
+    y = rng.standard_normal(5)
+    base = rng.standard_normal((3, 4))
+    q = np.array([0.5, 2.0, 0.0])
+    out = base.copy()
+    got = op.adjoint_add(y, out, 0.3, out=out, base_weights=q)
+    assert got is out
+    np.testing.assert_allclose(got, q[:, None] * base + 0.3 * op.adjoint(y), rtol=1e-12)
+    with pytest.raises(ValueError, match="one weight per slice"):
+        op.adjoint_add(y, base, 0.3, base_weights=[1.0, 2.0])

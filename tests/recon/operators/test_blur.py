@@ -69,6 +69,10 @@ def test_adjoint_add_is_base_plus_scaled_adjoint():
     base = rng.random(b.ishape).astype(np.float32)
     got = b.adjoint_add(y, base, -0.5)
     np.testing.assert_allclose(got, base - 0.5 * b.adjoint(y), rtol=1e-5, atol=1e-6)
+    q = np.linspace(0.1, 1.0, b.ishape[0]).astype(np.float32)
+    got = b.adjoint_add(y, base, -0.5, base_weights=q)
+    np.testing.assert_allclose(got, q[:, None, None] * base - 0.5 * b.adjoint(y), rtol=1e-5,
+                               atol=1e-6)
 
 
 def test_blur_keeps_a_flat_measurement_away_from_the_edges():
