@@ -43,7 +43,9 @@ iterations, PSNR and the process's peak resident memory during the solve (sample
 start: the same objective, another start).  ``--metrics scalar,auto`` solves each frame with
 FISTA's scalar step and then with the default step metric (``auto``: a step per band where
 the prior allows it, ``recon.solvers.band_metric``), one after the other in the process: the
-before/after of the band metric.  ``--compare`` times the reference paths (the
+before/after of the band metric.  ``--priors tv,subspace-tv`` solves each frame with every
+prior listed (default ``tv``, the prior of the speed targets; ``subspace-tv`` is what ``run``
+and ``demo`` solve by default).  ``--compare`` times the reference paths (the
 FFT blur, the unfused gradient step of the row scaling, the float64 PSNR history) against the
 current ones, alternated in the process, with the largest relative difference of their
 outputs.  Scenes (``--scenes``): ``natural`` and the CAVE development scene
@@ -53,7 +55,7 @@ Usage: python3 tools/bench_recon.py [--quick] [--out DIR] [--iters 50] [--solver
                                     [--configs a,b] [--repeat 3] [--no-reference]
        python3 tools/bench_recon.py --configs small,paper [--scenes natural,egyptian_statue]
                                     [--views 1,5] [--warm] [--compare] [--no-solve]
-                                    [--metrics scalar,auto]
+                                    [--metrics scalar,auto] [--priors tv,subspace-tv]
                                     [--repeat 3]
 """
 
@@ -435,7 +437,7 @@ def rel_diff(a, b) -> float:
 
 
 def bench_calibrated(design_name, scenes, views, repeat, warm, quick, converge=True,
-                     compare=False, metrics=None):
+                     compare=False, metrics=None, priors=("tv",)):
     """The rows of one calibrated design (see the module docstring); returns the report."""
     from kaleidospec.calibrate import calibrate, is_cached
     from kaleidospec.instrument import release_transports, render_scene
@@ -510,29 +512,37 @@ def bench_calibrated(design_name, scenes, views, repeat, warm, quick, converge=T
                       f"{setup:5.2f} s", flush=True)
                 rows.append(row)
                 continue
-            # The converged solve with every step metric asked for (--metrics), one after
-            # the other on the same frame; the last one's cube is kept (for --warm).
-            for metric in metrics:
-                with PeakRSS() as mem:
-                    cube, info = reconstruct_views(frame, meta, cal, n, truth=truths[n],
-                                                   design=design, model=model, metric=metric)
-                mrow = dict(row, metric=metric, metric_used=info["solver_info"].get("metric"),
-                            solve_s=info["seconds"], iters=info["iters"],
-                            psnr=info["metrics"]["psnr"], peak_rss_mb=mem.peak_mb,
-                            rss_start_mb=mem.start_mb,
-                            objective=(info["objective"] or [None])[-1])
-                print(f"  {design_name:5s} {scene:16s} {n} view(s): forward {fwd * 1e3:7.1f} ms"
-                      f"  adjoint {adj * 1e3:7.1f} ms  iteration {it_s:6.3f} s  | metric "
-                      f"{metric:6s} converged {info['iters']:3d} it {info['seconds']:7.2f} s  "
-                      f"PSNR {mrow['psnr']:6.2f} dB  peak RSS {mem.peak_mb:6.0f} MB",
-                      flush=True)
-                rows.append(mrow)
+            # The converged solve with every prior (--priors) and step metric (--metrics)
+            # asked for, one after the other on the same frame; the first prior's last cube
+            # is kept (for --warm).
+            for prior in priors:
+                for metric in metrics:
+                    with PeakRSS() as mem:
+                        c, info = reconstruct_views(frame, meta, cal, n, truth=truths[n],
+                                                    design=design, model=model, metric=metric,
+                                                    prior=prior)
+                    mrow = dict(row, prior=prior, metric=metric,
+                                metric_used=info["solver_info"].get("metric"),
+                                solve_s=info["seconds"], iters=info["iters"],
+                                psnr=info["metrics"]["psnr"], peak_rss_mb=mem.peak_mb,
+                                rss_start_mb=mem.start_mb,
+                                objective=(info["objective"] or [None])[-1])
+                    print(f"  {design_name:5s} {scene:16s} {n} view(s): forward "
+                          f"{fwd * 1e3:7.1f} ms  adjoint {adj * 1e3:7.1f} ms  iteration "
+                          f"{it_s:6.3f} s  | {prior:11s} metric {metric:6s} converged "
+                          f"{info['iters']:3d} it {info['seconds']:7.2f} s  PSNR "
+                          f"{mrow['psnr']:6.2f} dB  peak RSS {mem.peak_mb:6.0f} MB", flush=True)
+                    rows.append(mrow)
+                    if prior == priors[0]:
+                        cube = c
+                    del c
             cubes[n] = cube
             if warm and n > 1 and 1 in cubes:
                 with PeakRSS() as mem:
                     cube, info = reconstruct_views(frame, meta, cal, n, truth=truths[n],
-                                                   design=design, model=model, x0=cubes[1])
-                wrow = dict(row, warm_from=1, metric=DEFAULTS["metric"],
+                                                   design=design, model=model, x0=cubes[1],
+                                                   prior=priors[0])
+                wrow = dict(row, warm_from=1, prior=priors[0], metric=DEFAULTS["metric"],
                             solve_s=info["seconds"], iters=info["iters"],
                             psnr=info["metrics"]["psnr"], peak_rss_mb=mem.peak_mb)
                 print(f"  {design_name:5s} {scene:16s} {n} view(s) from the 1-view cube: "
@@ -542,7 +552,7 @@ def bench_calibrated(design_name, scenes, views, repeat, warm, quick, converge=T
         for r in rows:
             target = CALIBRATED_TARGETS.get((design_name, r["views"]))
             if target is not None and "warm_from" not in r and "solve_s" in r and \
-                    r.get("metric") == DEFAULTS["metric"]:
+                    r.get("metric") == DEFAULTS["metric"] and r.get("prior") == "tv":
                 r["target_s"] = target
         out["scenes"].append({"scene": scene, "rows": rows})
         del frame, truths, cubes
@@ -574,10 +584,20 @@ def main(argv=None):
                    help="FISTA step metrics of the calibrated converged solves, run one after "
                         "the other on each frame (e.g. scalar,auto: before / after the band "
                         "metric); --warm starts from the last one's 1-view cube")
+    p.add_argument("--priors", default="tv",
+                   help="priors of the calibrated converged solves, each with every metric "
+                        "(e.g. tv,subspace-tv: the issue's TV and what run and demo solve by "
+                        "default); the speed targets are TV's; --warm takes the first")
     p.add_argument("--no-reference", action="store_true",
                    help="skip the plain NumPy GAP-TV on (a) and the authors'-settings TwIST "
                         "on (b)")
     args = p.parse_args(argv)
+    from recon.priors import PRIORS
+
+    priors = tuple(v for v in args.priors.split(",") if v)
+    unknown = [v for v in priors if v not in PRIORS]
+    if not priors or unknown:
+        p.error(f"--priors: choose from {', '.join(PRIORS)} (got {args.priors!r})")
     args.out.mkdir(parents=True, exist_ok=True)
     names = [s for s in args.solvers.split(",") if s]
     kernels = _kernels()
@@ -598,7 +618,8 @@ def main(argv=None):
             report.setdefault("calibrated", []).append(
                 bench_calibrated(key, scenes, views, args.repeat, args.warm, args.quick,
                                  converge=not args.no_solve, compare=args.compare,
-                                 metrics=[m for m in args.metrics.split(",") if m]))
+                                 metrics=[m for m in args.metrics.split(",") if m],
+                                 priors=priors))
             summary += _check_calibrated(report["calibrated"][-1])
             continue
         if key not in ("a", "b"):
