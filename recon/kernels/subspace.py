@@ -117,24 +117,71 @@ def gram(v, partial):
                 acc[b, a] = acc[a, b]
 
 
+@jit(refcount=False)
+def _mix_tile(c, src, d0, d1, d2, d3, p0, r0, r1):
+    r"""Rows ``p0 .. p0+3`` of :math:`C\,\mathrm{src}` on pixels ``r0 .. r1 - 1`` into
+    ``d0 .. d3`` (rows past the last of ``c`` repeat it; their ``d`` is the caller's scratch),
+    four source rows at a time: each pass over the run loads four source values and updates
+    four outputs with them, where a source row at a time loads and stores an output for each
+    product."""
+    p_rows, q_rows = c.shape
+    last = p_rows - 1
+    m = r1 - r0
+    for i in range(m):
+        d0[i] = 0
+        d1[i] = 0
+        d2[i] = 0
+        d3[i] = 0
+    pa, pb, pc, pd = p0, min(p0 + 1, last), min(p0 + 2, last), min(p0 + 3, last)
+    q = 0
+    while q + 4 <= q_rows:
+        a0, a1, a2, a3 = c[pa, q], c[pa, q + 1], c[pa, q + 2], c[pa, q + 3]
+        b0, b1, b2, b3 = c[pb, q], c[pb, q + 1], c[pb, q + 2], c[pb, q + 3]
+        e0, e1, e2, e3 = c[pc, q], c[pc, q + 1], c[pc, q + 2], c[pc, q + 3]
+        f0, f1, f2, f3 = c[pd, q], c[pd, q + 1], c[pd, q + 2], c[pd, q + 3]
+        s0, s1 = src[q, r0:r1], src[q + 1, r0:r1]
+        s2, s3 = src[q + 2, r0:r1], src[q + 3, r0:r1]
+        for i in range(m):
+            x0, x1, x2, x3 = s0[i], s1[i], s2[i], s3[i]
+            d0[i] += a0 * x0 + a1 * x1 + a2 * x2 + a3 * x3
+            d1[i] += b0 * x0 + b1 * x1 + b2 * x2 + b3 * x3
+            d2[i] += e0 * x0 + e1 * x1 + e2 * x2 + e3 * x3
+            d3[i] += f0 * x0 + f1 * x1 + f2 * x2 + f3 * x3
+        q += 4
+    while q < q_rows:
+        a0, b0, e0, f0 = c[pa, q], c[pb, q], c[pc, q], c[pd, q]
+        s0 = src[q, r0:r1]
+        for i in range(m):
+            x0 = s0[i]
+            d0[i] += a0 * x0
+            d1[i] += b0 * x0
+            d2[i] += e0 * x0
+            d3[i] += f0 * x0
+        q += 1
+
+
 @jit(parallel=True)
 def mix(c, src, dst):
     r""":math:`\mathrm{dst} = C\,\mathrm{src}`: ``c`` ``(P, Q)``, ``src`` ``(Q, N)``, ``dst``
     ``(P, N)``, float32 (``dst`` may not alias ``src``).  The projection is ``c`` =
-    :math:`E^\top` (C-contiguous), the expansion ``c`` = :math:`E`."""
+    :math:`E^\top` (C-contiguous), the expansion ``c`` = :math:`E`.
+
+    Runs of :data:`_RUN` pixels, four rows of ``dst`` at a time (:func:`_mix_tile`; the rows
+    past the last go to a scratch): the run's outputs stay in the core's first cache while
+    the source rows stream through it."""
     p_rows, n = dst.shape
-    q_rows = c.shape[1]
     for blk in prange((n + _BLOCK - 1) // _BLOCK):
         lo = blk * _BLOCK
         hi = min(n, lo + _BLOCK)
-        for p in range(p_rows):
-            dp = dst[p, lo:hi]
-            dp[:] = 0
-            for q in range(q_rows):
-                w = c[p, q]
-                sq = src[q, lo:hi]
-                for i in range(hi - lo):
-                    dp[i] += w * sq[i]
+        spare = np.empty((3, _RUN), dtype=dst.dtype)
+        for r0 in range(lo, hi, _RUN):
+            r1 = min(hi, r0 + _RUN)
+            m = r1 - r0
+            for p0 in range(0, p_rows, 4):
+                d1 = dst[p0 + 1, r0:r1] if p0 + 1 < p_rows else spare[0, :m]
+                d2 = dst[p0 + 2, r0:r1] if p0 + 2 < p_rows else spare[1, :m]
+                d3 = dst[p0 + 3, r0:r1] if p0 + 3 < p_rows else spare[2, :m]
+                _mix_tile(c, src, dst[p0, r0:r1], d1, d2, d3, p0, r0, r1)
 
 
 @jit()

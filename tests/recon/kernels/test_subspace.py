@@ -56,3 +56,19 @@ def test_jacobi_eigh():
     np.testing.assert_allclose(np.sort(w), w_ref, rtol=1e-9, atol=1e-9 * w_ref.max())
     np.testing.assert_allclose(v.T @ v, np.eye(28), atol=1e-10)
     np.testing.assert_allclose(v @ np.diag(w) @ v.T, a, atol=1e-9 * np.abs(a).max())
+
+
+@pytest.mark.parametrize("p_rows,q_rows", [(1, 1), (3, 5), (4, 4), (5, 9), (7, 26), (26, 7)])
+def test_mix_tiles_every_row(p_rows, q_rows):
+    """C src by tiles of four rows of each: row counts that do not fill the last tile (their
+    spare rows go to a scratch, not into another row), source counts with a remainder, runs
+    and blocks with ragged ends."""
+    from recon.kernels import subspace as ks
+
+    rng = np.random.default_rng(10 * p_rows + q_rows)
+    c = rng.standard_normal((p_rows, q_rows)).astype(np.float32)
+    src = rng.standard_normal((q_rows, 2 * 4096 + 700)).astype(np.float32)
+    dst = np.full((p_rows, src.shape[1]), np.nan, np.float32)
+    ks.mix(c, src, dst)
+    ref = c.astype(np.float64) @ src.astype(np.float64)
+    assert np.abs(dst - ref).max() <= 1e-6 * np.abs(ref).max()
