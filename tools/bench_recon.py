@@ -586,8 +586,8 @@ def main(argv=None):
                         "metric); --warm starts from the last one's 1-view cube")
     p.add_argument("--priors", default="tv",
                    help="priors of the calibrated converged solves, each with every metric "
-                        "(e.g. tv,subspace-tv: the issue's TV and what run and demo solve by "
-                        "default); the speed targets are TV's; --warm takes the first")
+                        "(e.g. tv,subspace-tv: the prior of the speed targets and what run and "
+                        "demo solve by default); --warm takes the first")
     p.add_argument("--no-reference", action="store_true",
                    help="skip the plain NumPy GAP-TV on (a) and the authors'-settings TwIST "
                         "on (b)")
