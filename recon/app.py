@@ -251,7 +251,6 @@ def reconstruct(
     def callback(it, x, info):
         if truth_bm is not None:
             # Global PSNR (peak = max of the truth), computed band-major without a transpose.
-            s = peak
             # Band by band in float64: a float64 copy of a paper-size cube and its difference
             # would be 0.3 GB more memory, and a few tenths of a second, every iteration.
             if kernels.usable(x) and x.flags.c_contiguous and x.shape == truth_bm.shape:
@@ -259,7 +258,7 @@ def reconstruct(
             else:
                 sq = sum(float(np.sum((np.asarray(xl, dtype=np.float64) - tl) ** 2))
                          for xl, tl in zip(x, truth_bm))
-            mse = sq / truth_bm.size / (s * s)
+            mse = sq / truth_bm.size / (peak * peak)
             history.append(float(10 * np.log10(1.0 / mse)) if mse > 0 else float("inf"))
             if bar is not None:
                 bar.set_postfix(psnr=f"{history[-1]:.2f}")

@@ -191,7 +191,7 @@ class BandMetric:
         #: :math:`\sigma_0 = 1/\max_l d_l`, the step of the prior's prox.
         self.step = 1.0 / self.dmax
         self.weighted = bool(weighted)
-        self._w = (d / self.dmax).astype(dtype)[:, None, None]      # 1/r_l, in (0, 1]
+        self._w = (d / self.dmax).astype(dtype)                     # 1/r_l, in (0, 1]
         self._r = (self.dmax / d).astype(dtype)[:, None, None]      # r_l >= 1
         self._q = np.sqrt(self.dmax / d)                                     # 1/w_l
         self._sqrt_r = self._q.astype(dtype)[:, None, None]
@@ -203,7 +203,7 @@ class BandMetric:
         :math:`r` for :meth:`prox` (``out`` may not be ``z``).  The weights :math:`1/r_l`
         on :math:`z` go to the operator's gradient step (``base_weights``), which a fused
         kernel applies as it writes ``out``: no pass of its own over the cube."""
-        return op.adjoint_add(r, z, self.step, out=out, base_weights=self._w.reshape(-1))
+        return op.adjoint_add(r, z, self.step, out=out, base_weights=self._w)
 
     def prox(self, prior, v_scaled: np.ndarray, out: np.ndarray) -> np.ndarray:
         r"""``out`` :math:`= \mathrm{prox}^D_\varphi(v)` from ``v_scaled`` :math:`= v/r`
