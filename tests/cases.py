@@ -24,3 +24,30 @@ def reference_subspace(v, rank):
     e = vecs[:, ::-1][:, :rank]
     e *= np.sign(e.sum(axis=0))
     return e, (e.T @ m).reshape((rank,) + v.shape[1:])
+
+
+class DriftingTV:
+    """TV whose value carries a state that moves at every prox (an offset growing by
+    ``drift`` a call), as a basis re-estimated from each iterate moves a subspace prior's
+    value; the prox, and so the minimiser, are TV's."""
+
+    band_scalable = True
+
+    def __init__(self, tau, drift, reports_state):
+        from recon.priors.tv import TVPrior
+
+        self.tv = TVPrior(tau)
+        self.drift, self.reports_state, self.calls = drift, reports_state, 0
+
+    def prox(self, v, step, out=None):
+        self.calls += 1
+        return self.tv.prox(v, step, out=out)
+
+    def value(self, x):
+        return self.tv.value(x) + self.drift * self.calls
+
+    def reset(self):
+        self.tv.reset()
+
+    def state_change(self):
+        return 1e-6 if self.reports_state and self.calls > 1 else None

@@ -85,6 +85,7 @@ import numpy as np
 
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
+from recon.solvers.base import power_iteration
 
 __all__ = ["DEFAULT_EXPONENT", "METRICS", "band_scalable", "band_weighted",
            "band_column_norms_sq", "band_metric", "BandMetric"]
@@ -130,19 +131,7 @@ def _metric_norm_sq(op: LinearOperator, isq: np.ndarray, dtype, n_iter: int = 15
                     seed: int = 0) -> float:
     r""":math:`\|H S^{-1/2}\|_2^2` by power iteration (``isq`` = :math:`s^{-1/2}` per band),
     times 1.02 as :func:`~recon.solvers.base.operator_norm_sq`."""
-    rng = np.random.default_rng(seed)
-    x = rng.standard_normal(op.ishape).astype(dtype)
-    x /= np.linalg.norm(x)
-    w = isq.astype(dtype)[:, None, None]
-    lam = 0.0
-    for _ in range(int(n_iter)):
-        y = op.adjoint(op.forward(x * w))
-        y *= w
-        lam = float(np.linalg.norm(y))
-        if lam == 0.0:
-            return 0.0
-        x = (y / lam).astype(dtype, copy=False)
-    return 1.02 * lam
+    return 1.02 * power_iteration(op, n_iter, dtype, seed, weights=isq)
 
 
 def band_metric(op: LinearOperator, dtype=np.float32, exponent: float = DEFAULT_EXPONENT,

@@ -51,7 +51,7 @@ from recon.priors.tv import check_weight
 from recon.prox.tv import tv_norm
 
 __all__ = ["SolverResult", "Callback", "IterationLoop", "check_problem", "objective",
-           "operator_norm_sq", "resolve_prior", "RESTART_HOLD", "COAST"]
+           "operator_norm_sq", "power_iteration", "resolve_prior", "RESTART_HOLD", "COAST"]
 
 #: The most iterations after a momentum restart (the restart's own included) in which the
 #: stopping rule is not tested (see the module notes).
@@ -228,17 +228,40 @@ def operator_norm_sq(op: LinearOperator, n_iter: int = 15, dtype=np.float32,
     A power iteration approaches the top eigenvalue from below; the estimate is multiplied by
     1.02 so that a step :math:`1/\|H\|^2` stays on the safe side after ``n_iter`` iterations.
     """
+    return 1.02 * power_iteration(op, n_iter, dtype, seed)
+
+
+def power_iteration(op: LinearOperator, n_iter: int, dtype=np.float32, seed: int = 0,
+                    weights: np.ndarray | None = None) -> float:
+    r"""The top eigenvalue of :math:`W H^\top H W` after ``n_iter`` power iterations from a
+    normal draw (``seed``), :math:`W = \mathrm{diag}(w)` one factor per slice of the first axis
+    (``weights``, shape ``(ishape[0],)``; the identity when omitted); 0 for a zero operator.
+
+    The iterate, :math:`H^\top H` of it (and the weighted iterate) live in cubes allocated
+    once: the adjoint is written into a zeroed cube by the operator's gradient step
+    (``adjoint_add``, :math:`0 + H^\top y`, the same values as ``adjoint``), not into a new
+    cube an iteration.
+    """
     rng = np.random.default_rng(seed)
     x = rng.standard_normal(op.ishape).astype(dtype)
     x /= np.linalg.norm(x)
+    w = None if weights is None else np.asarray(weights).astype(dtype).reshape(
+        (-1,) + (1,) * (x.ndim - 1))
+    xw = None if w is None else np.empty_like(x)
+    y = np.empty_like(x)
     lam = 0.0
     for _ in range(int(n_iter)):
-        y = op.adjoint(op.forward(x))
+        y.fill(0)
+        if w is None:
+            op.adjoint_add(op.forward(x), y, 1.0, out=y)
+        else:
+            op.adjoint_add(op.forward(np.multiply(x, w, out=xw)), y, 1.0, out=y)
+            y *= w
         lam = float(np.linalg.norm(y))
         if lam == 0.0:
             return 0.0
-        x = (y / lam).astype(dtype, copy=False)
-    return 1.02 * lam
+        np.divide(y, lam, out=x)
+    return lam
 
 
 class IterationLoop:

@@ -21,7 +21,11 @@ objective as TwIST for any operator (any number of views, no
 assumption on :math:`HH^\top`), with one forward and one adjoint per iteration.  The TV prox is
 warm-started from the previous dual.  With a plug-and-play denoiser in place of the prox
 (a prior whose ``value`` is None) it is PnP-FISTA, and the restart tests the step's direction
-only.
+only.  A prior that re-estimates a state from the iterate (a spectral basis,
+:meth:`~recon.priors.base.PriorBase.state_change`) has an objective
+:math:`F_k(f) = \tfrac12\|g-Hf\|^2 + \varphi_k(f)` of each iteration's own; the restart
+test compares :math:`F_k(f_k)` with :math:`F_k(f_{k-1})`, the previous iterate scored again
+with the new state.
 
 With ``metric="bands"`` the step is taken in a diagonal metric :math:`D` constant over each
 band (:mod:`recon.solvers.band_metric`), :math:`H^\top H \preceq D`:
@@ -156,6 +160,7 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
     t = 1.0
     restarts = 0
     prev_obj = math.inf
+    prev_misfit = None
     history: list[float] = []
     step = np.empty_like(f)
     # Residuals g - H(.) of f_k and f_{k-1} (computed for the restart test) give that of
@@ -189,6 +194,14 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
             else:
                 value = bm.prox_value(prior, f, work=step)
             obj = None if value is None else misfit + value
+            if obj is not None and prev_misfit is not None and state_change(prior) is not None:
+                # A prior that re-estimates a state (a basis) from each iterate changes its
+                # value from one iteration to the next: the previous iterate is scored again
+                # with this iteration's state, so that the test sees the step, not the turn.
+                again = (prior_value(prior, f_prev) if bm is None
+                         else bm.value(prior, f_prev, work=step))
+                prev_obj = prev_obj if again is None else prev_misfit + again
+            prev_misfit = misfit
         # The momentum step is taken in the same pass as the restart test's inner product
         # and the relative change; when the inner product then asks for a restart, z is
         # reset to f (a restart is rare: a few times a solve).

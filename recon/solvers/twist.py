@@ -257,6 +257,11 @@ def twist(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
                 prior.prox(vin, 1.0 / max_svd, out=ist)
                 _residual(op, g, ist, resid_ist)
                 ist_svd, ist_f = max_svd, None
+                if state_change(prior) is not None:
+                    # A prior that re-estimates a state (a basis) in its prox changes its
+                    # value with it: the iterate the tests compare with is scored again
+                    # with the new state, so that they see the step, not the state's turn.
+                    prev_f = 0.5 * float(np.vdot(resid, resid)) + prior.value(x)
             if twist_steps != 0:
                 # f_{t+1} = (1-alpha) f_{t-1} + (alpha-beta) f_t + beta Gamma(f_t)
                 value_new = combine_value(prior, c_m1, xm1, c_0, x, beta, ist, new)

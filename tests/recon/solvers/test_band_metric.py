@@ -200,8 +200,10 @@ def test_subspace_tv_runs_weighted(weak_band_op):
 
 
 def test_subspace_tv_takes_its_value_from_the_prox(weak_band_op, monkeypatch):
-    # The restart test's prior value comes from the prox's coefficient images (one projection
-    # an iteration, not two): the same iterates and objective as with a value call.
+    # The restart test's prior value of the new iterate comes from the prox's coefficient
+    # images (the prox's projection, no second one; the previous iterate, scored again with
+    # the new basis from the second iteration on, takes one more): the same iterates and
+    # objective as with a value call.
     from recon.priors import subspace
 
     g = weak_band_op.forward(_truth())
@@ -214,11 +216,11 @@ def test_subspace_tv_takes_its_value_from_the_prox(weak_band_op, monkeypatch):
         return fista_tv(weak_band_op, g, iters=30, prior=sub, metric="auto", objective=True)
 
     fast = run()
-    assert len(calls) == 30
+    assert len(calls) == 30 + 29
     monkeypatch.setattr(subspace.SubspaceTV, "prox_value", lambda self: None)
     calls.clear()
     slow = run()
-    assert len(calls) == 60
+    assert len(calls) == 60 + 29
     assert fast.iterations == slow.iterations
     np.testing.assert_allclose(fast.objective, slow.objective, rtol=1e-9)
     np.testing.assert_allclose(fast.x, slow.x, rtol=1e-7, atol=1e-9)

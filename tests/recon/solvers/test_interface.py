@@ -323,3 +323,38 @@ def test_kaleidoscope_three_views_beats_one_view():
     p1 = psnr(solve("gap-tv", one, one.forward(truth), iters=60, tau=0.05).x, truth)
     p3 = psnr(solve("gap-tv", three, three.forward(truth), iters=60, tau=0.05).x, truth)
     assert p3 > p1 + 3
+
+
+def _power_reference(op, n_iter, dtype, seed, weights=None):
+    # The loop power_iteration replaced: new cubes every iteration.
+    rng = np.random.default_rng(seed)
+    x = rng.standard_normal(op.ishape).astype(dtype)
+    x /= np.linalg.norm(x)
+    w = 1 if weights is None else np.asarray(weights).astype(dtype)[:, None, None]
+    lam = 0.0
+    for _ in range(n_iter):
+        y = op.adjoint(op.forward(x * w)) * w
+        lam = float(np.linalg.norm(y))
+        x = (y / lam).astype(dtype, copy=False)
+    return lam
+
+
+@pytest.mark.parametrize("weighted", [False, True])
+@pytest.mark.parametrize("key", ["standard", "kaleido3"])
+def test_power_iteration_matches_its_reference_and_the_top_eigenvalue(small_ops, key, weighted):
+    from recon.solvers.base import operator_norm_sq, power_iteration
+
+    op = small_ops[key]
+    w = np.linspace(0.3, 1.0, op.ishape[0]) if weighted else None
+    for dtype in (np.float32, np.float64):
+        assert power_iteration(op, 15, dtype, 3, w) == _power_reference(op, 15, dtype, 3, w)
+    if not weighted:
+        assert operator_norm_sq(op) == 1.02 * _power_reference(op, 15, np.float32, 0)
+    # The eigenvalue itself, from the dense matrix W H^T H W.
+    n = int(np.prod(op.ishape))
+    cols = np.stack([op.adjoint(op.forward(e.reshape(op.ishape))).ravel()
+                     for e in np.eye(n)], axis=1)
+    ww = np.ones(n) if w is None else np.repeat(w, n // op.ishape[0])
+    top = np.linalg.eigvalsh(ww[:, None] * cols * ww[None, :]).max()
+    assert power_iteration(op, 400, np.float64, 0, w) == pytest.approx(top, rel=1e-6)
+    assert power_iteration(MatrixOperator(np.zeros((4, 6))), 5) == 0.0

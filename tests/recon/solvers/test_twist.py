@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from cases import piecewise_cube
+from cases import DriftingTV, piecewise_cube
 from recon.metrics import psnr
 from recon.operators.base import LinearOperator
 from recon.solvers import twist, twist_parameters
@@ -29,6 +29,19 @@ def test_reconstructs_and_is_monotone(ops, key, floor):
     obj = np.array(res.objective)
     assert len(obj) == 60
     assert np.all(np.diff(obj) <= 0)
+
+
+def test_monotone_test_scores_the_iterate_with_the_current_state(ops):
+    # As FISTA's restart test (test_fista_tv): after a prox that moved the prior's state, the
+    # iterate the monotone test compares with is scored with the new state, so a state that
+    # lifts every value alike rejects no step and the iterates are those without a state.
+    op, truth = ops["kaleido3"], piecewise_cube()
+    g = op.forward(truth)
+    plain = twist(op, g, iters=60, tol=None, prior=DriftingTV(0.05, 0.0, reports_state=False))
+    drifting = twist(op, g, iters=60, tol=None, prior=DriftingTV(0.05, 0.5, reports_state=True))
+    assert drifting.info["rejected"] == plain.info["rejected"]
+    assert drifting.info["svd_doublings"] == plain.info["svd_doublings"]
+    np.testing.assert_allclose(drifting.x, plain.x, rtol=0, atol=1e-5 * float(np.abs(plain.x).max()))
 
 
 def test_underestimated_norm_is_doubled_and_stays_monotone(ops):
