@@ -56,7 +56,7 @@ from recon import kernels
 from recon.errors import InputError
 
 __all__ = ["Prior", "PriorBase", "check_prior", "gradient_prox", "combine_value", "refine",
-           "describe", "state_change", "prox_value", "scaled_prox", "stages",
+           "describe", "state_change", "prox_value", "previous_value", "scaled_prox", "stages",
            "linear_combination", "solver_algorithm"]
 
 
@@ -174,6 +174,16 @@ class PriorBase:
         does not, or before any call.  Equal to ``value`` of that result up to rounding."""
         return None
 
+    def previous_value(self) -> float | None:
+        r""":math:`\varphi` of the result of the prox call before the last one, scored with the
+        state the last call re-estimated (:meth:`state_change`), where the prior has it at hand
+        for less than a :meth:`value` call would cost; None (the default) where it does not, or
+        before two calls.  Equal to ``value`` of that result, called now, up to rounding.
+
+        A solver that compares its last two iterates under one objective (FISTA's restart
+        test) asks for it, when the earlier iterate is the earlier prox's result."""
+        return None
+
     def stages(self) -> tuple[Prior, int] | None:
         """A prior solved in two stages: ``(first, n)``, the prior of the first stage, which
         the solver runs to its stopping rule (or its iterations), and ``n`` iterations of this
@@ -238,6 +248,13 @@ def _scaled_prox_default(prior, v, step, weights, out):
 def prox_value(prior) -> float | None:
     """:meth:`PriorBase.prox_value` of ``prior``; None for a bare prior."""
     fn = getattr(prior, "prox_value", None)
+    value = None if fn is None else fn()
+    return None if value is None else float(value)
+
+
+def previous_value(prior) -> float | None:
+    """:meth:`PriorBase.previous_value` of ``prior``; None for a bare prior."""
+    fn = getattr(prior, "previous_value", None)
     value = None if fn is None else fn()
     return None if value is None else float(value)
 

@@ -169,6 +169,7 @@ class _Subspace(PriorBase):
             raise InputError(f"rank must be a positive integer, got {rank!r}")
         self.rank = None if rank is None else int(rank)
         self.basis: np.ndarray | None = None
+        self._previous_basis: np.ndarray | None = None     # the basis of the call before
         self._change: float | None = None
 
     def _check(self, v: np.ndarray, step: float) -> tuple[np.ndarray, float, int]:
@@ -191,7 +192,7 @@ class _Subspace(PriorBase):
         factor q per band (``weights``) the basis E of q ⊙ v (:func:`leading_basis`), and
         (QE, (QE)ᵀ v) in its place."""
         v = np.ascontiguousarray(v)
-        previous = self.basis
+        previous = self._previous_basis = self.basis
         self.basis = leading_basis(v, rank, previous, weights)
         self._change = basis_change(previous, self.basis)
         e = self.basis if weights is None else \
@@ -205,6 +206,7 @@ class _Subspace(PriorBase):
 
     def reset(self) -> None:
         self.basis = None
+        self._previous_basis = None
         self._change = None
 
 
@@ -253,6 +255,8 @@ class SubspaceTV(_Subspace):
         self.threads = threads
         self._tv: TVProx | None = None
         self._coeffs: np.ndarray | None = None   # the last prox's coefficient images
+        self._previous_coeffs: np.ndarray | None = None     # and the call's before
+        self._turned: np.ndarray | None = None   # scratch of previous_value
 
     def describe(self) -> dict:
         return {"prior": self.name, "weight": self.weight, "rank": self.rank,
@@ -278,7 +282,7 @@ class SubspaceTV(_Subspace):
             if self._tv is None or self._tv.shape != z.shape or self._tv.dtype != z.dtype:
                 self._tv = TVProx(z.shape, z.dtype, self.isotropic, self.threads)
             z = self._tv(z, step * self.weight, self.tv_iters, warm=True, out=z)
-        self._coeffs = z
+        self._previous_coeffs, self._coeffs = self._coeffs, z
         return expand(e, z, out)
 
     def prox_value(self) -> float | None:
@@ -288,6 +292,24 @@ class SubspaceTV(_Subspace):
         if self._coeffs is None:
             return None
         return self.weight * tv_norm(self._coeffs, self.isotropic)
+
+    def previous_value(self) -> float | None:
+        r""":math:`\lambda\,\mathrm{TV}(E^\top E' z')`: the value of the previous prox's
+        result :math:`E'z'` (basis :math:`E'`, coefficients :math:`z'`) with the last call's
+        basis :math:`E`, from the coefficients through the :math:`k\times k` matrix
+        :math:`E^\top E'`, without a pass over the cube; None before two calls, or when the
+        rank changed.  With a factor per band (:meth:`scaled_prox`) it is the value of
+        :math:`q^{-1}\odot` that result, the factors being the same at both calls, which is
+        how the band metric takes the prior."""
+        if self._previous_coeffs is None or self._previous_basis is None or \
+                self.basis is None or self._previous_basis.shape != self.basis.shape:
+            return None
+        z = self._previous_coeffs
+        turn = (self.basis.T @ self._previous_basis).astype(z.dtype)
+        if self._turned is None or self._turned.shape != z.shape or \
+                self._turned.dtype != z.dtype:
+            self._turned = np.empty_like(z)
+        return self.weight * tv_norm(expand(turn, z, self._turned), self.isotropic)
 
     def value(self, x: np.ndarray) -> float:
         r""":math:`\lambda\,\mathrm{TV}(E^\top x)` with the basis of the last call (of ``x``
@@ -304,7 +326,7 @@ class SubspaceTV(_Subspace):
     def reset(self) -> None:
         """Forget the basis, the TV dual and the last coefficients (a new problem begins)."""
         super().reset()
-        self._coeffs = None
+        self._coeffs = self._previous_coeffs = self._turned = None
         if self._tv is not None:
             self._tv.reset()
 

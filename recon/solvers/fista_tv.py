@@ -49,7 +49,7 @@ from recon import kernels
 from recon.errors import InputError
 from recon.operators.base import LinearOperator
 from recon.priors.base import describe as prior_info
-from recon.priors.base import prox_value, state_change
+from recon.priors.base import previous_value, prox_value, state_change
 from recon.solvers.base import (IterationLoop, SolverResult, check_problem, data_misfit,
                                 operator_norm_sq, prior_value, resolve_prior)
 
@@ -198,8 +198,12 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
                 # A prior that re-estimates a state (a basis) from each iterate changes its
                 # value from one iteration to the next: the previous iterate is scored again
                 # with this iteration's state, so that the test sees the step, not the turn.
-                again = (prior_value(prior, f_prev) if bm is None
-                         else bm.value(prior, f_prev, work=step))
+                # f_prev is the previous prox's result: a prior that keeps it in a cheaper
+                # form (the subspace's coefficients) scores it from there.
+                again = previous_value(prior) if bm is None or bm.weighted else None
+                if again is None:
+                    again = (prior_value(prior, f_prev) if bm is None
+                             else bm.value(prior, f_prev, work=step))
                 prev_obj = prev_obj if again is None else prev_misfit + again
             prev_misfit = misfit
         # The momentum step is taken in the same pass as the restart test's inner product

@@ -184,6 +184,33 @@ def test_prox_value_is_the_value_of_the_prox_result():
     assert prior.prox_value() is None
 
 
+@pytest.mark.parametrize("weighted", [False, True])
+def test_previous_value_scores_the_previous_result_with_the_new_basis(weighted):
+    # The value of the previous prox's result with the basis the last call re-estimated,
+    # from its coefficient images: value() of that result called now (float32 rounding
+    # apart), with a basis that did turn between the calls; with factors per band the value
+    # of the result divided by them (how the band metric takes the prior).  Nothing before
+    # two calls, after a reset, or when the rank changed.
+    rng = np.random.default_rng(5)
+    q = rng.uniform(1.0, 4.0, 12) if weighted else None
+    qc = np.ones((12, 1, 1), np.float32) if q is None else q.astype(np.float32)[:, None, None]
+    prior = SubspaceTV(0.3, rank=4)
+    first = prior.scaled_prox(low_rank_cube(noise=0.1, seed=0), 0.5, q).copy()
+    assert prior.previous_value() is None
+    v = low_rank_cube(noise=0.1, seed=1)
+    v[:3] += 0.2 * low_rank_cube(seed=7)[:3]      # another spectrum: the basis turns
+    prior.scaled_prox(v, 0.5, q)
+    assert prior.state_change() > 1e-2
+    want = prior.value(first / qc)
+    assert want != pytest.approx(SubspaceTV(0.3, rank=4).value(first / qc), rel=1e-3)
+    assert prior.previous_value() == pytest.approx(want, rel=1e-5)
+    prior.rank = 5
+    prior.prox(v, 0.5)
+    assert prior.previous_value() is None
+    prior.reset()
+    assert prior.previous_value() is None
+
+
 def test_scaled_prox_is_the_prox_of_the_weighted_cube():
     # q * prox(q * v) with the factors carried on the basis: the weighted cube's basis, the
     # same result and value as weighing the cube, over two calls (the warm dual and the

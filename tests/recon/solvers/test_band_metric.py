@@ -199,11 +199,12 @@ def test_subspace_tv_runs_weighted(weak_band_op):
     assert not tv.info["band_weighted"]
 
 
-def test_subspace_tv_takes_its_value_from_the_prox(weak_band_op, monkeypatch):
-    # The restart test's prior value of the new iterate comes from the prox's coefficient
-    # images (the prox's projection, no second one; the previous iterate, scored again with
-    # the new basis from the second iteration on, takes one more): the same iterates and
-    # objective as with a value call.
+def test_subspace_tv_takes_its_values_from_the_prox(weak_band_op, monkeypatch):
+    # The restart test's prior values come from the prox's coefficient images: the new
+    # iterate's from the last prox (its own projection, no second one), the previous
+    # iterate's, scored again with the new basis from the second iteration on, from the
+    # previous prox's coefficients turned into the new basis (no projection either).  The
+    # same iterates and objective as with value calls that project the cube.
     from recon.priors import subspace
 
     g = weak_band_op.forward(_truth())
@@ -212,18 +213,23 @@ def test_subspace_tv_takes_its_value_from_the_prox(weak_band_op, monkeypatch):
     monkeypatch.setattr(subspace, "project", lambda e, v: calls.append(1) or project(e, v))
 
     def run():
+        calls.clear()
         sub = make_prior("subspace-tv", shape=SHAPE, dtype=np.float64, weight=0.02, rank=2)
         return fista_tv(weak_band_op, g, iters=30, prior=sub, metric="auto", objective=True)
 
     fast = run()
+    assert len(calls) == 30
+    monkeypatch.setattr(subspace.SubspaceTV, "previous_value", lambda self: None)
+    half = run()
     assert len(calls) == 30 + 29
     monkeypatch.setattr(subspace.SubspaceTV, "prox_value", lambda self: None)
-    calls.clear()
     slow = run()
     assert len(calls) == 60 + 29
-    assert fast.iterations == slow.iterations
-    np.testing.assert_allclose(fast.objective, slow.objective, rtol=1e-9)
-    np.testing.assert_allclose(fast.x, slow.x, rtol=1e-7, atol=1e-9)
+    for res in (half, slow):
+        assert fast.iterations == res.iterations
+        assert fast.info["restarts"] == res.info["restarts"]
+        np.testing.assert_allclose(fast.objective, res.objective, rtol=1e-9)
+        np.testing.assert_allclose(fast.x, res.x, rtol=1e-7, atol=1e-9)
 
 
 def test_bad_options(weak_band_op):

@@ -28,6 +28,26 @@ def test_reaches_the_same_minimum_as_twist(ops):
 
 
 @pytest.mark.parametrize("metric", ["scalar", "bands"])
+def test_restart_test_scores_the_previous_iterate_from_the_subspace_coefficients(
+        ops, metric, monkeypatch):
+    # subspace-tv scores the previous iterate with the new basis from the previous prox's
+    # coefficients (SubspaceTV.previous_value, no pass over the cube): the same restarts, the
+    # same iterations and the same cube as projecting the previous iterate again.
+    from recon.priors import subspace
+
+    op, truth = ops["kaleido3"], piecewise_cube()
+    g = op.forward(truth)
+    g += np.random.default_rng(1).normal(0.0, 0.02, g.shape).astype(g.dtype)
+    kw = dict(iters=150, tol=None, metric=metric)
+    fast = fista_tv(op, g, prior=subspace.SubspaceTV(0.05, rank=3), **kw)
+    monkeypatch.setattr(subspace.SubspaceTV, "previous_value", lambda self: None)
+    slow = fista_tv(op, g, prior=subspace.SubspaceTV(0.05, rank=3), **kw)
+    assert slow.info["restarts"] >= 3
+    assert fast.info["restarts"] == slow.info["restarts"]
+    np.testing.assert_allclose(fast.x, slow.x, rtol=0, atol=1e-5 * float(np.abs(slow.x).max()))
+
+
+@pytest.mark.parametrize("metric", ["scalar", "bands"])
 def test_restart_test_scores_the_previous_iterate_with_the_current_state(ops, metric):
     # The objective test compares the new iterate with the previous one under the prior's
     # state of this iteration: a state that lifts every value alike then restarts nothing,
