@@ -183,15 +183,16 @@ def solver_metric(solver: str, metric) -> dict:
 def solve_views(op, g, n_views: int, *, solver: str = DEFAULTS["solver"],
                 iters: int = DEFAULTS["iters"], tol=DEFAULTS["tol"], tau=None, x0=None, truth=None,
                 wavelengths=None, progress: bool = False, noise=None, prior=None,
-                metric=DEFAULTS["metric"]):
+                metric=DEFAULTS["metric"], history: bool = False):
     """Reconstruct measurements ``g`` of ``n_views`` views through ``op`` the way every path of
     the application does: operator and data brought to unit mean row norm (:func:`normalised`),
     the prior ``prior`` (a :data:`recon.priors.PRIORS` name; None: ``"tv"``) with the weight
     from :func:`prior_weight` (``noise``: the rms noise of ``g``, in its units, e.g.
     :func:`measurement_noise`), then :func:`recon.app.reconstruct` (at most ``iters``
     iterations, fewer once the relative change falls below ``tol``; ``None`` runs them all;
-    FISTA's step ``metric``, :func:`solver_metric`).  Adds ``seconds`` and ``noise`` (in the
-    unit-row-norm units)."""
+    FISTA's step ``metric``, :func:`solver_metric`; with ``truth``, the final metrics and,
+    with ``history``, the PSNR after every iteration, which the application's outputs do not
+    use).  Adds ``seconds`` and ``noise`` (in the unit-row-norm units)."""
     from recon.app import reconstruct
 
     op, g = normalised(op, g)
@@ -200,7 +201,8 @@ def solve_views(op, g, n_views: int, *, solver: str = DEFAULTS["solver"],
     tau = prior_weight(prior, solver, tau, n_views, noise)
     cube, info = reconstruct(g, op, solver=solver, iters=iters, tol=tol, tau=tau, x0=x0,
                              truth=truth, wavelengths=wavelengths, progress=progress,
-                             prior=prior, noise=noise, **solver_metric(solver, metric))
+                             prior=prior, noise=noise, history=history,
+                             **solver_metric(solver, metric))
     info["seconds"] = time.perf_counter() - t0
     info["noise"] = noise
     return cube, info
@@ -242,7 +244,7 @@ def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = DEFAULTS["
                       iters: int = DEFAULTS["iters"], tol=DEFAULTS["tol"], tau=None, x0=None,
                       truth=None, progress: bool = False, design=None,
                       model: str | None = None, prior: str | None = None,
-                      metric=DEFAULTS["metric"]):
+                      metric=DEFAULTS["metric"], history: bool = False):
     """Reconstruct from the first ``n_views`` views of a raw frame with a calibration.
 
     Parameters
@@ -256,8 +258,8 @@ def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = DEFAULTS["
     n_views : int
         1..9, views taken in the order centre, left, right, top, bottom, corners; all must be
         in the calibration.
-    solver, iters, tau, x0, progress, prior, metric
-        As for :func:`recon.app.reconstruct` (``tau``, ``prior`` and ``metric``:
+    solver, iters, tau, x0, progress, prior, metric, history
+        As for :func:`recon.app.reconstruct` (``tau``, ``prior``, ``metric`` and ``history``:
         :func:`solve_views`).
     tol : float or None
         Stop once the relative change of the cube falls below it (:func:`solve_views`).
@@ -292,7 +294,7 @@ def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = DEFAULTS["
                              iters=iters, tol=tol, tau=tau, x0=x0, truth=tg,
                              wavelengths=cal.wavelengths, progress=progress,
                              noise=measurement_noise(g, metadata, cal.noise), prior=prior,
-                             metric=metric)
+                             metric=metric, history=history)
     info["view_ids"] = list(ids)
     if tg is not None:
         info["truth_grid"] = tg
@@ -303,10 +305,11 @@ def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = DEFAULTS["
 def reconstruct_oracle(frame, metadata, design, n_views, *, solver: str = DEFAULTS["solver"],
                        iters: int = DEFAULTS["iters"], tol=DEFAULTS["tol"], tau=None,
                        truth=None, progress: bool = False, inversion: bool = True, op=None,
-                       prior: str | None = None, metric=DEFAULTS["metric"]):
+                       prior: str | None = None, metric=DEFAULTS["metric"],
+                       history: bool = False):
     """Reconstruct a frame with the design's exact operator
-    (:func:`kaleidospec.instrument.oracle_operator`, or ``op``), on the ground-truth grid.
-    Returns ``(cube (v, v, L), info)``."""
+    (:func:`kaleidospec.instrument.oracle_operator`, or ``op``), on the ground-truth grid
+    (``history``: :func:`solve_views`).  Returns ``(cube (v, v, L), info)``."""
     from kaleidospec.instrument import oracle_measurements, oracle_operator
 
     first_views(n_views)
@@ -317,7 +320,7 @@ def reconstruct_oracle(frame, metadata, design, n_views, *, solver: str = DEFAUL
     return solve_views(op, g, n_views, solver=solver, iters=iters, tol=tol, tau=tau,
                        truth=truth, wavelengths=design.wavelengths, progress=progress,
                        noise=measurement_noise(g, metadata, design_noise(design)), prior=prior,
-                       metric=metric)
+                       metric=metric, history=history)
 
 
 def check_oracle_solver(solver: str) -> str:

@@ -31,6 +31,7 @@ they are (clipping them would bias the data).  So :func:`reconstruct`
 
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
@@ -42,6 +43,9 @@ __all__ = ["reconstruct", "reconstruct_standard", "standard_n_bands", "default_t
 
 #: Negative values below ``-NEGATIVE_WARN_FRACTION * max(g)`` are beyond read noise (warning).
 NEGATIVE_WARN_FRACTION = 0.1
+#: Seconds between the PSNRs a progress bar shows when no history is kept (a PSNR is a pass
+#: over the cube and the truth).
+PSNR_SHOWN_EVERY = 1.0
 
 
 class NegativeMeasurementWarning(UserWarning):
@@ -173,6 +177,7 @@ def reconstruct(
     truth=None,
     wavelengths=None,
     progress: bool = False,
+    history: bool = True,
     **solver_options,
 ) -> tuple[np.ndarray, dict]:
     r"""Reconstruct a cube from a (multi-view) CASSI measurement.
@@ -197,13 +202,17 @@ def reconstruct(
     x0 : array (H, W, L), optional
         Initial guess (the solver's default, usually :math:`H^\top g`, otherwise).
     truth : array (H, W, L), optional
-        Reference cube: the PSNR after each iteration goes to ``info["psnr_history"]`` and
-        the final :func:`recon.metrics.all_metrics` to ``info["metrics"]``.
+        Reference cube: the final :func:`recon.metrics.all_metrics` go to ``info["metrics"]``
+        and, with ``history``, the PSNR after each iteration to ``info["psnr_history"]``.
     wavelengths : array (L,), optional
         Only used for the colour metric (CIEDE2000) when ``truth`` is given.
     progress : bool
         Report progress on stderr (a bar on a terminal, one line at the end elsewhere:
-        :func:`recon.progress.progress_bar`).
+        :func:`recon.progress.progress_bar`); with ``truth`` the bar shows the PSNR, taken
+        at most every :data:`PSNR_SHOWN_EVERY` seconds where there is no history.
+    history : bool
+        With ``truth``, the PSNR after every iteration (one pass over the cube and the truth
+        an iteration).
     **solver_options
         Passed on to the solver.
 
@@ -225,8 +234,8 @@ def reconstruct(
     info : dict
         ``solver``, ``prior`` (its name), ``iters`` (done), ``tau`` (the TV weight, or the
         weight given to another prior), ``seconds`` (wall time of the solve), ``converged``,
-        ``objective`` (list, may be empty), ``solver_info``; with ``truth`` also ``metrics`` and
-        ``psnr_history``.
+        ``objective`` (list, may be empty), ``solver_info``; with ``truth`` also ``metrics``
+        and, with ``history``, ``psnr_history``.
     """
     from recon.solvers import SOLVERS, solve
 
@@ -239,7 +248,8 @@ def reconstruct(
     x0_bm = None if x0 is None else _to_band_major(x0, op.ishape, "x0", dtype)
     truth_bm = None if truth is None else _to_band_major(truth, op.ishape, "truth", np.float32)
 
-    history: list[float] = []
+    psnrs: list[float] = []
+    shown = [-math.inf]      # when the bar last showed a PSNR (without a history)
     if truth_bm is not None:
         from recon import kernels
         from recon.kernels import vector as kvec
@@ -249,7 +259,10 @@ def reconstruct(
     bar = None
 
     def callback(it, x, info):
-        if truth_bm is not None:
+        now = time.perf_counter()
+        if truth_bm is not None and (history or (bar is not None
+                                                 and now - shown[0] >= PSNR_SHOWN_EVERY)):
+            shown[0] = now
             # Global PSNR (peak = max of the truth), computed band-major without a transpose.
             # Band by band in float64: a float64 copy of a paper-size cube and its difference
             # would be 0.3 GB more memory, and a few tenths of a second, every iteration.
@@ -259,9 +272,11 @@ def reconstruct(
                 sq = sum(float(np.sum((np.asarray(xl, dtype=np.float64) - tl) ** 2))
                          for xl, tl in zip(x, truth_bm))
             mse = sq / truth_bm.size / (peak * peak)
-            history.append(float(10 * np.log10(1.0 / mse)) if mse > 0 else float("inf"))
+            value = float(10 * np.log10(1.0 / mse)) if mse > 0 else float("inf")
+            if history:
+                psnrs.append(value)
             if bar is not None:
-                bar.set_postfix(psnr=f"{history[-1]:.2f}")
+                bar.set_postfix(psnr=f"{value:.2f}")
         if bar is not None:
             bar.update(1)
         return None
@@ -281,7 +296,7 @@ def reconstruct(
                            desc=solver, unit="it")
     if x0_bm is not None:
         kwargs["x0"] = x0_bm
-    if truth_bm is not None or bar is not None:
+    if (truth_bm is not None and history) or bar is not None:
         kwargs["callback"] = callback
 
     t0 = time.perf_counter()
@@ -316,7 +331,8 @@ def reconstruct(
     if truth is not None:
         from recon.metrics import all_metrics
 
-        info["psnr_history"] = history
+        if history:
+            info["psnr_history"] = psnrs
         info["metrics"] = all_metrics(cube, np.moveaxis(truth_bm, 0, 2), wavelengths)
     return cube, info
 

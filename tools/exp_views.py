@@ -114,7 +114,8 @@ def run_scene(scene: str, design, cal, views, *, solver, iters, tau, seed, noise
     rows, cubes = [], {}
     for n in views:
         cube, info = reconstruct_views(frame, meta, cal, n, solver=solver, iters=iters, tol=tol,
-                                       tau=tau, truth=on_grid[n], progress=progress, model=model)
+                                       tau=tau, truth=on_grid[n], progress=progress, model=model,
+                                       history=history)
         # The shifted model's grid leaves out the guard stripe's columns: score against the
         # truth moved onto the model's grid (info["truth_grid"]), not the design's square grid.
         grid = info["truth_grid"]
@@ -129,7 +130,8 @@ def run_scene(scene: str, design, cal, views, *, solver, iters, tau, seed, noise
             # The truth goes in only for the history: it costs a PSNR every iteration.
             ocube, oinfo = reconstruct_oracle(frame, meta, design, n, solver=solver,
                                               iters=iters, tol=tol, tau=tau, progress=progress,
-                                              truth=truth if history else None)
+                                              truth=truth if history else None,
+                                              history=history)
             row["oracle"] = {**metrics_of(ocube, truth, wl),
                              "tau": finite(oinfo.get("tau")), "noise": finite(oinfo.get("noise")),
                              "seconds": float(oinfo.get("seconds", 0.0)),

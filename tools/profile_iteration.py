@@ -2,13 +2,14 @@
 
 Runs the product's own solve (``kaleidospec.reconstruct.reconstruct_views``: the calibrated
 model of a real, cached calibration, brought to unit mean row norm, FISTA with the prior and
-the noise-following weight, the PSNR history against the truth as ``run`` keeps it) for a
+the noise-following weight, the truth's metrics at the end and no PSNR history, as ``run``
+solves) for a
 few iterations, with timers wrapped around the parts it calls: the operators' forward and
 gradient step (``adjoint_add``) per layer (row scaling, PSF blur, calibrated kernels), the
 prior's prox and value (and, for ``subspace-tv``, its basis, projection, TV prox and
 expansion), FISTA's restart test (its data misfit) and its momentum pass (the restart
 test's inner product, the extrapolation and the relative change in one pass), and the loop's
-step (the PSNR callback).  Each part's
+step.  Each part's
 *own* time (its callees' time taken out) is averaged over iterations 2..N (the first
 iteration and the set-up are left out: the set-up is reported on its own line, as
 ``normalised`` + the power iteration).  What no timer covers is the "rest" (FISTA's own

@@ -141,6 +141,19 @@ def _quiet_stdio():
             os.close(fd)
 
 
+def _openexr():
+    """The OpenEXR module, its library's thread pool sized to the CPUs the process may use
+    (:func:`recon.kernels.cores`) unless someone sized it already: the library compresses and
+    decompresses a file's line blocks on it, the same bytes as with no threads."""
+    import OpenEXR
+
+    if OpenEXR.global_thread_count() == 0:
+        from recon.kernels import cores
+
+        OpenEXR.set_global_thread_count(cores())
+    return OpenEXR
+
+
 def read_exr(path: PathLike) -> tuple[dict[str, np.ndarray], dict]:
     """Read every channel of a single-part scanline/tiled OpenEXR file.
 
@@ -149,8 +162,7 @@ def read_exr(path: PathLike) -> tuple[dict[str, np.ndarray], dict]:
     channels : dict name -> (H, W) array (native dtype: float32, float16 or uint32)
     header : dict of header attributes
     """
-    import OpenEXR
-
+    OpenEXR = _openexr()
     p = check_file(path)
     try:
         with _quiet_stdio():
@@ -166,7 +178,7 @@ def read_exr(path: PathLike) -> tuple[dict[str, np.ndarray], dict]:
 
 def write_exr(path: PathLike, channels: dict[str, np.ndarray], header: dict | None = None, *, protect=()) -> Path:
     """Write float32 channels to a ZIP-compressed scanline OpenEXR file, atomically."""
-    import OpenEXR
+    OpenEXR = _openexr()
 
     hdr = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     hdr.update(header or {})

@@ -54,6 +54,34 @@ def test_exr_channels(tmp_path, arr):
         read_array2d(tmp_path / "two.exr", key="R")
 
 
+def test_exr_threads_write_the_same_bytes(tmp_path, monkeypatch):
+    # The OpenEXR library's thread pool is sized to the process's CPUs on first use, unless
+    # it was sized already; its threads compress the line blocks to the same bytes as none.
+    import OpenEXR
+
+    from recon.io import arrays
+
+    chans = {f"b{l}": np.random.default_rng(l).random((70, 90)).astype(np.float32)
+             for l in range(5)}
+    monkeypatch.setattr(arrays, "_openexr", lambda: OpenEXR)  # as the library is now
+    saved = OpenEXR.global_thread_count()
+    try:
+        OpenEXR.set_global_thread_count(0)
+        write_exr(tmp_path / "none.exr", chans)
+        OpenEXR.set_global_thread_count(3)
+        write_exr(tmp_path / "three.exr", chans)
+        assert (tmp_path / "none.exr").read_bytes() == (tmp_path / "three.exr").read_bytes()
+        monkeypatch.undo()
+        arrays._openexr()
+        assert OpenEXR.global_thread_count() == 3
+        OpenEXR.set_global_thread_count(0)
+        monkeypatch.setattr("recon.kernels.cores", lambda: 2)
+        arrays._openexr()
+        assert OpenEXR.global_thread_count() == 2
+    finally:
+        OpenEXR.set_global_thread_count(saved)
+
+
 def test_half_exr(tmp_path, arr):
     import OpenEXR
 
