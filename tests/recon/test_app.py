@@ -42,16 +42,20 @@ def test_the_psnr_history_is_taken_only_when_asked(problem, psnr_passes):
     assert lean_info["iters"] == 12
 
 
-def test_the_progress_bar_shows_a_psnr_now_and_then(problem, psnr_passes, monkeypatch):
-    # Without a history the bar's PSNR is taken at most every PSNR_SHOWN_EVERY seconds: the
-    # first iteration's, then none within the interval; every iteration's with no interval.
+def test_the_progress_bar_shows_a_psnr_now_and_then(problem, psnr_passes, monkeypatch,
+                                                    capsys):
+    # Without a history the bar's PSNR is taken at most every PSNR_SHOWN_EVERY seconds (the
+    # first iteration's, then none within the interval; every iteration's with no interval)
+    # and once more for the result, whose PSNR the bar's closing line shows.
     op, g, truth = problem
     kw = dict(solver="fista-tv", iters=12, tol=None, truth=truth, history=False,
               progress=True)
     monkeypatch.setattr(app, "PSNR_SHOWN_EVERY", 1e9)
-    app.reconstruct(g, op, **kw)
-    assert len(psnr_passes) == 1
+    capsys.readouterr()
+    _, info = app.reconstruct(g, op, **kw)
+    assert len(psnr_passes) == 2
+    assert f"psnr {info['metrics']['psnr']:.2f}" in capsys.readouterr().err
     psnr_passes.clear()
     monkeypatch.setattr(app, "PSNR_SHOWN_EVERY", 0.0)
     app.reconstruct(g, op, **kw)
-    assert len(psnr_passes) == 12
+    assert len(psnr_passes) == 12 + 1
