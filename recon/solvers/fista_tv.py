@@ -200,10 +200,11 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
                 # with this iteration's state, so that the test sees the step, not the turn.
                 # f_prev is the previous prox's result: a prior that keeps it in a cheaper
                 # form (the subspace's coefficients) scores it from there.
-                again = previous_value(prior) if bm is None or bm.weighted else None
-                if again is None:
-                    again = (prior_value(prior, f_prev) if bm is None
-                             else bm.value(prior, f_prev, work=step))
+                if bm is None:
+                    again = previous_value(prior)
+                    again = prior_value(prior, f_prev) if again is None else again
+                else:
+                    again = bm.previous_value(prior, f_prev, work=step)
                 prev_obj = prev_obj if again is None else prev_misfit + again
             prev_misfit = misfit
         # The momentum step is taken in the same pass as the restart test's inner product
