@@ -218,27 +218,13 @@ class BandMetric:
             v = prior.value(x)
         return None if v is None else float(v)
 
-    def prox_value(self, prior, x: np.ndarray, work: np.ndarray | None = None) -> float | None:
-        r""":meth:`value` of :math:`x` = :meth:`prox`'s last result: the prior's own
-        :meth:`~recon.priors.base.PriorBase.prox_value` where it has one and the prior is
-        weighted (its prox's result is then :math:`w\odot x`), else :meth:`value`."""
-        from recon.priors.base import prox_value
-
-        return self._kept_or_value(prox_value, prior, x, work)
-
-    def previous_value(self, prior, x_prev: np.ndarray, work: np.ndarray | None = None
-                       ) -> float | None:
-        r""":meth:`value` of ``x_prev`` = the result of :meth:`prox`'s call before the last,
-        with the prior's state of the last call: the prior's own
-        :meth:`~recon.priors.base.PriorBase.previous_value` where it has one and the prior is
-        weighted, else :meth:`value`."""
-        from recon.priors.base import previous_value
-
-        return self._kept_or_value(previous_value, prior, x_prev, work)
-
-    def _kept_or_value(self, kept, prior, x: np.ndarray, work) -> float | None:
-        """``kept(prior)``, a value the prior keeps of a prox result, where the prior is
-        weighted and keeps one; else :meth:`value` of ``x``."""
+    def kept_value(self, kept, prior, x: np.ndarray, work: np.ndarray | None = None
+                   ) -> float | None:
+        r""":meth:`value` of :math:`x`, a result of :meth:`prox`: ``kept(prior)``, the value
+        the prior keeps of that result (:func:`~recon.priors.base.prox_value` of the last,
+        :func:`~recon.priors.base.previous_value` of the one before, with the last call's
+        state), where the prior is weighted (its prox's results are then :math:`w\odot x`)
+        and keeps one; else :meth:`value`."""
         if self.weighted:
             v = kept(prior)
             if v is not None:

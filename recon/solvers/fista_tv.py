@@ -188,11 +188,7 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
             # `step` is free here (the prox has read it; the change test below reuses it).
             # The prox's own value where the prior keeps it (f is its result), else a value
             # call.
-            if bm is None:
-                value = prox_value(prior)
-                value = prior_value(prior, f) if value is None else value
-            else:
-                value = bm.prox_value(prior, f, work=step)
+            value = _prox_result_value(prox_value, prior, f, bm, step)
             obj = None if value is None else misfit + value
             if obj is not None and prev_misfit is not None and state_change(prior) is not None:
                 # A prior that re-estimates a state (a basis) from each iterate changes its
@@ -200,11 +196,7 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
                 # with this iteration's state, so that the test sees the step, not the turn.
                 # f_prev is the previous prox's result: a prior that keeps it in a cheaper
                 # form (the subspace's coefficients) scores it from there.
-                if bm is None:
-                    again = previous_value(prior)
-                    again = prior_value(prior, f_prev) if again is None else again
-                else:
-                    again = bm.previous_value(prior, f_prev, work=step)
+                again = _prox_result_value(previous_value, prior, f_prev, bm, step)
                 prev_obj = prev_obj if again is None else prev_misfit + again
             prev_misfit = misfit
         # The momentum step is taken in the same pass as the restart test's inner product
@@ -240,6 +232,18 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
                               **({} if bm is None else {"band_weighted": bm.weighted}),
                               **({} if bm is None else {"band_metric": bm.d.tolist()}),
                               **prior_info(prior)})
+
+
+def _prox_result_value(kept, prior, x: np.ndarray, bm, work: np.ndarray) -> float | None:
+    r"""The prior's value of ``x``, a result of its prox, as the loop minimises it:
+    ``kept(prior)`` (:func:`~recon.priors.base.prox_value` of the last result,
+    :func:`~recon.priors.base.previous_value` of the one before) where the prior keeps it,
+    else a value call; in the band metric ``bm`` its
+    :meth:`~recon.solvers.band_metric.BandMetric.kept_value` (``work`` its scratch)."""
+    if bm is not None:
+        return bm.kept_value(kept, prior, x, work=work)
+    value = kept(prior)
+    return prior_value(prior, x) if value is None else value
 
 
 def _use_band_metric(metric: str, prior, lipschitz) -> bool:
