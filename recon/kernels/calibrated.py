@@ -56,9 +56,10 @@ __all__ = ["bands_last", "forward_view", "shift_adjoint", "warp_adjoint", "adjoi
 _ROWS = 8
 #: Pixels per parallel task of :func:`bands_last`.
 _PIXELS = 64
-#: Bytes of a task's rows of every band in :func:`adjoint_views` (:func:`adjoint_rows`): with
-#: the view rows they gather from, the task's scratch stays in a core's L2 cache.
-ADJOINT_TASK_BYTES = 1 << 18
+#: Bytes of a task's rows of every band in :func:`adjoint_views` (:func:`adjoint_rows`): about
+#: a core's L2 cache (1 MiB on current x86 cores).  A task remakes the view rows it shares
+#: with the next, so taller tasks remake a smaller share of them (docs/speed_product.md).
+ADJOINT_TASK_BYTES = 1 << 20
 #: The most view rows a task of :func:`adjoint_views` may need (warps that spread a cube row
 #: over more, e.g. a strong rotation, take the view-by-view kernels).
 ADJOINT_MAX_ZROWS = 32
@@ -147,9 +148,20 @@ def _gather_row_pixels(xt, indptr, indices, data, i, vt):
     for j in range(wv):
         r = base + j
         acc = vt[j]
+        e0, e1 = indptr[r], indptr[r + 1]
+        if e1 - e0 == 4:
+            # A bilinear tap's four entries (almost every row) in one expression: the pixel's
+            # bands are written once, where adding entry by entry loads and stores them four
+            # times.  The same sum, in the same order.
+            d0, d1, d2, d3 = data[e0], data[e0 + 1], data[e0 + 2], data[e0 + 3]
+            s0, s1 = xt[indices[e0]], xt[indices[e0 + 1]]
+            s2, s3 = xt[indices[e0 + 2]], xt[indices[e0 + 3]]
+            for l in range(n_bands):
+                acc[l] = d0 * s0[l] + d1 * s1[l] + d2 * s2[l] + d3 * s3[l]
+            continue
         for l in range(n_bands):
             acc[l] = 0
-        for e in range(indptr[r], indptr[r + 1]):
+        for e in range(e0, e1):
             d = data[e]
             src = xt[indices[e]]
             for l in range(n_bands):

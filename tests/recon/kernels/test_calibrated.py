@@ -71,6 +71,18 @@ def test_forward_and_adjoint_match_numpy(name):
     assert_operator_matches_numpy(OPS[name], 22)
 
 
+def test_forward_gathers_rows_of_four_entries_and_the_others():
+    """The forward's gather adds a row of four entries (a bilinear tap inside the cube) in one
+    expression and any other row (the cube's edges) entry by entry: the homography views
+    hold both kinds, and their forward matches the NumPy path, which sums entry by entry."""
+    op = OPS["homographies-5"]
+    lengths = set()
+    for warp in op.warps[1:]:
+        lengths |= set(np.diff(warp.sparse_pair()[0].indptr).tolist())
+    assert 4 in lengths and lengths - {4}
+    assert_operator_matches_numpy(op, 25)
+
+
 @pytest.mark.parametrize("name", sorted(OPS))
 def test_kernels_have_exact_adjoints(name):
     assert dot_test(OPS[name], np.random.default_rng(23), dtype=np.float32) < 1e-6
