@@ -446,7 +446,10 @@ def tv_deconvolve(views: np.ndarray, radii: np.ndarray, weight: float = TV_WEIGH
         return sfft.rfft2(x, workers=workers)
 
     def irfft(x):
-        return sfft.irfft2(x, s=(hp, wp), workers=workers)
+        return inverse_rfft2(x, (hp, wp), workers)
+
+    def irfft_unscaled(x):
+        return _inverse_rfft2_unscaled(x, (hp, wp), workers)
 
     # The transfer functions, one per band, shared by the views: each kernel centred on the
     # origin of the padded (circular) domain.
@@ -473,7 +476,8 @@ def tv_deconvolve(views: np.ndarray, radii: np.ndarray, weight: float = TV_WEIGH
                 del d
                 u = irfft(kd / (power[sl] + np.float32(balance))).astype(np.float32)
                 u = _fista_tv_deconvolve(u, kd, power[sl], float(weight), int(iterations),
-                                         rfft, irfft)
+                                         rfft, irfft_unscaled,
+                                         _inverse_factor(np.float32, (hp, wp)))
                 u = u[:, pad:pad + h, pad:pad + w] * scale
                 u[~lit] = 0.0
                 out[k, sl] = u
@@ -481,15 +485,50 @@ def tv_deconvolve(views: np.ndarray, radii: np.ndarray, weight: float = TV_WEIGH
     return out
 
 
+def inverse_rfft2(x: np.ndarray, shape, workers: int | None = None) -> np.ndarray:
+    r""":func:`scipy.fft.irfft2` ``(x, s=shape)`` over the last two axes, to the bit, in two
+    calls: the inverse complex transform along the rows' axis, then the complex-to-real one
+    along the last axis, both unscaled, then the factor :math:`1/(h w)`.
+
+    That is how the library's one call computes it (a complex pass over the leading axis,
+    then the real one with the factor), so every value is the same; the one call is the
+    slower (docs/speed_product.md, "Calibration time"), and its time varies from call to
+    call on a batch of crops.
+    """
+    out = _inverse_rfft2_unscaled(x, shape, workers)
+    out *= _inverse_factor(out.dtype, shape)
+    return out
+
+
+def _inverse_rfft2_unscaled(x: np.ndarray, shape, workers: int | None) -> np.ndarray:
+    """:func:`inverse_rfft2` without its factor :func:`_inverse_factor`."""
+    import scipy.fft as sfft
+
+    h, w = (int(n) for n in shape)
+    t = sfft.ifft(x, n=h, axis=-2, norm="forward", workers=workers)
+    return sfft.irfft(t, n=w, axis=-1, norm="forward", workers=workers, overwrite_x=True)
+
+
+def _inverse_factor(dtype, shape):
+    """The inverse transform's :math:`1/(h w)` in ``dtype``, as the library applies it."""
+    h, w = (int(n) for n in shape)
+    return np.dtype(dtype).type(1.0 / (h * w))
+
+
 def _check_positive(value, what: str) -> None:
     if not (np.isfinite(value) and value > 0):
         raise InputError(f"{what} must be positive, got {value}")
 
 
-def _fista_tv_deconvolve(u, kd, power, weight, iterations, rfft, irfft):
+def _fista_tv_deconvolve(u, kd, power, weight, iterations, rfft, irfft_unscaled, factor):
     r"""FISTA for :math:`\tfrac12\|k * u - d\|^2 + \mu\mathrm{TV}(u)` from ``u``, step 1,
     with ``kd`` = :math:`\hat k^* \hat d` and ``power`` = :math:`|\hat k|^2` (bands along
-    the first axis, each with its own kernel)."""
+    the first axis, each with its own kernel); ``irfft_unscaled`` the inverse transform
+    without its ``factor``.
+
+    The element-wise passes between the transforms run as threaded kernels that give the
+    NumPy expressions' bits (:mod:`recon.kernels.deconvolve`) where the kernels run, else as
+    those expressions (the reference)."""
     from recon.prox.tv import TVProx
 
     if iterations == 0:
@@ -499,17 +538,38 @@ def _fista_tv_deconvolve(u, kd, power, weight, iterations, rfft, irfft):
     v = np.empty_like(u)
     nxt = np.empty_like(u)
     t = 1.0
+    fused = kernels.usable(u, power) and kd.dtype == np.complex64 and \
+        np.dtype(type(factor)) == np.float32
+    if fused:
+        from recon.kernels import deconvolve as kdec
+
+        power_f = power.reshape(-1)
+        kd_f = kd.reshape(-1).view(np.float32)
     for _ in range(iterations):
         spec = rfft(z)
-        spec *= power
-        spec -= kd
-        np.subtract(z, irfft(spec), out=v)
+        if fused:
+            with kernels.threads():
+                kdec.residual_spectrum(spec.reshape(-1).view(np.float32), power_f, kd_f)
+            r = irfft_unscaled(spec)
+            with kernels.threads():
+                kdec.residual(z.reshape(-1), r.reshape(-1), factor, v.reshape(-1))
+        else:
+            spec *= power
+            spec -= kd
+            r = irfft_unscaled(spec)
+            r *= factor
+            np.subtract(z, r, out=v)
         # Two warm dual iterations per step: an even count (recon.prox.tv's notes).
         prox(v, weight, n_iter=2, out=nxt)
         t_next = 0.5 * (1.0 + np.sqrt(1.0 + 4.0 * t * t))
-        np.subtract(nxt, u, out=z)
-        z *= np.float32((t - 1.0) / t_next)
-        z += nxt
+        c = np.float32((t - 1.0) / t_next)
+        if fused:
+            with kernels.threads():
+                kdec.momentum(nxt.reshape(-1), u.reshape(-1), c, z.reshape(-1))
+        else:
+            np.subtract(nxt, u, out=z)
+            z *= c
+            z += nxt
         u, nxt = nxt, u
         t = t_next
     return u

@@ -155,8 +155,12 @@ def threads(n: int | None = None):
             lock.release()
 
 
-def jit(parallel: bool = False, refcount: bool = True):
+def jit(parallel: bool = False, refcount: bool = True, exact: bool = False):
     """``numba.njit`` with the package's settings (cached, :data:`FASTMATH`).
+
+    ``exact=True`` compiles without fast-math: every operation rounds as IEEE arithmetic
+    does, in the order written, so a kernel gives the same bits as the NumPy expressions it
+    replaces (for paths whose outputs are kept to the bit, as the calibration's).
 
     ``refcount=False`` is for the row helpers, which slice but never allocate: without
     Numba's reference counting a slice costs no atomic update of its parent's count.  Those
@@ -165,8 +169,8 @@ def jit(parallel: bool = False, refcount: bool = True):
     """
     # error_model="numpy": a float division by zero gives inf/nan as in NumPy instead of
     # raising, which also lets LLVM vectorise loops that divide.
-    opts = dict(cache=True, parallel=parallel, fastmath=set(FASTMATH), nogil=True,
-                error_model="numpy")
+    opts = dict(cache=True, parallel=parallel, fastmath=set() if exact else set(FASTMATH),
+                nogil=True, error_model="numpy")
     if not refcount:
         opts["_nrt"] = False
     return _numba().njit(**opts)

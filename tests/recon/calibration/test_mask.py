@@ -91,6 +91,52 @@ def _blurred_whites(r, noise):
     return caps, boxes, np.full(len(OFFS), r), error
 
 
+@pytest.mark.parametrize("shape", [(37, 50), (3, 40, 63), (2, 3, 96, 128), (2, 250, 261)])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_inverse_rfft2_is_scipys_to_the_bit(shape, dtype):
+    import scipy.fft as sfft
+
+    from recon.calibration.mask import inverse_rfft2
+
+    x = np.random.default_rng(8).standard_normal(shape).astype(dtype)
+    spec = sfft.rfft2(x)
+    h, w = shape[-2:]
+    got = inverse_rfft2(spec, (h, w), 2)
+    want = sfft.irfft2(spec, s=(h, w))
+    assert got.dtype == want.dtype == dtype
+    assert np.array_equal(got.view(np.uint8), want.view(np.uint8))
+
+
+def test_tv_deconvolution_kernels_give_the_numpy_steps_bits(monkeypatch):
+    # The FISTA steps' element-wise passes as threaded kernels against the NumPy expressions,
+    # the TV prox the same in both: the same mask images to the bit.
+    import recon.calibration.mask as mask
+    from recon import kernels
+
+    if not kernels.enabled():
+        pytest.skip("Numba kernels switched off")
+    rng = np.random.default_rng(6)
+    caps, _ = _captures(_truth(rng), rng, noise=0.01, blur=1.65)
+    views = np.ascontiguousarray(caps[None, :, 4:4 + HV, 3:3 + WM])
+    radii = np.full(len(OFFS), 1.65)
+    fused = mask.tv_deconvolve(views.copy(), radii, iterations=6)
+
+    class Unfused:
+        """recon.kernels for the deconvolution, but no fused passes."""
+
+        def __getattr__(self, name):
+            return getattr(kernels, name)
+
+        @staticmethod
+        def usable(*arrays):
+            return False
+
+    monkeypatch.setattr(mask, "kernels", Unfused())
+    plain = mask.tv_deconvolve(views.copy(), radii, iterations=6)
+    assert np.array_equal(fused.view(np.uint32), plain.view(np.uint32))
+    assert not np.array_equal(fused, mask.tv_deconvolve(views.copy(), radii, iterations=5))
+
+
 @pytest.mark.parametrize("r", [1.65, 2.1])      # the paper's mean and reddest Airy radii, px
 def test_wiener_filter_undoes_airy_blur_where_richardson_lucy_stalls(r):
     # The TV deconvolution's start: one filter pass leaves less than half the error that 30

@@ -77,3 +77,37 @@ def test_deconvolve_in_place():
     got = deconvolve(views, radii, 3, out=views)
     assert got is views
     np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("n", [1, 7, (1 << 14) + 3, 50_000])
+def test_tv_step_passes_are_numpys_expressions_to_the_bit(n):
+    # The TV deconvolution's element-wise passes (recon.calibration.mask._fista_tv_deconvolve)
+    # against the NumPy expressions they replace, bit for bit: signed zeros, zeros in the
+    # spectrum and in the power, negative values, sizes around a task's block.
+    rng = np.random.default_rng(n)
+    spec = (rng.standard_normal(n) + 1j * rng.standard_normal(n)).astype(np.complex64)
+    spec[::5] = 0.0
+    spec.imag[1::7] = -0.0
+    power = rng.random(n).astype(np.float32)
+    power[::3] = 0.0
+    kd = (rng.standard_normal(n) + 1j * rng.standard_normal(n)).astype(np.complex64)
+    kd[::4] = 0.0
+    want = spec.copy()
+    want *= power
+    want -= kd
+    got = spec.copy()
+    kdec.residual_spectrum(got.view(np.float32), power, kd.view(np.float32))
+    assert np.array_equal(got.view(np.uint32), want.view(np.uint32))
+
+    z, r, u, nxt = (rng.standard_normal(n).astype(np.float32) for _ in range(4))
+    s, c = np.float32(1.0 / 977.0), np.float32(0.71)
+    rs = r.copy()
+    rs *= s
+    out = np.empty_like(z)
+    kdec.residual(z, r, s, out)
+    assert np.array_equal(out.view(np.uint32), (z - rs).view(np.uint32))
+    want = np.subtract(nxt, u)
+    want *= c
+    want += nxt
+    kdec.momentum(nxt, u, c, out)
+    assert np.array_equal(out.view(np.uint32), want.view(np.uint32))
