@@ -58,3 +58,37 @@ def test_blurred_operator_dot_test_through_the_kernels():
         fwd, adj = op.forward(x), op.adjoint(y)
     assert rel(op.forward(x), fwd) < RTOL32
     assert rel(op.adjoint(y), adj) < RTOL32
+
+
+def test_grouped_taps_give_the_one_tap_sums_to_the_bit():
+    # correlate_row adds a kernel row's taps four to a pass where all four lie inside the
+    # row; every column must add the same products in the same order as one tap a pass (the
+    # kernel it replaced, compiled here with the same settings), edges and narrow rows
+    # included.
+    from recon.kernels import jit
+    from recon.kernels.blur import correlate_row
+
+    @jit()
+    def by_tap(a, k, i, acc):
+        h, w = a.shape
+        m = k.shape[0]
+        n = m // 2
+        acc[:] = 0
+        for p in range(m):
+            ii = i + p - n
+            if 0 <= ii < h:
+                for q in range(m):
+                    for j in range(w):
+                        if 0 <= j + q - n < w:
+                            acc[j] += k[p, q] * a[ii, j + q - n]
+
+    rng = np.random.default_rng(30)
+    for m in (1, 3, 5, 7, 9, 11):
+        k = rng.random((m, m)).astype(np.float32)
+        for h, w in ((1, 1), (3, 2), (12, 5), (9, 11), (6, 40)):
+            a = rng.standard_normal((h, w)).astype(np.float32)
+            got, want = np.empty(w, np.float32), np.empty(w, np.float32)
+            for i in range(h):
+                correlate_row(a, k, i, got)
+                by_tap(a, k, i, want)
+                assert np.array_equal(got.view(np.uint32), want.view(np.uint32)), (m, h, w, i)
