@@ -47,7 +47,6 @@ import numpy as np
 from recon.calibration.views import (VIEW_FLIPS, as_frame_stack, check_boxes, check_view_ids,
                                      crop)
 from recon.errors import InputError
-from recon.kernels import each
 
 _SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-4)
 
@@ -291,11 +290,8 @@ def view_homographies(checker, white, view_boxes, view_ids, pattern_size,
                         for im, v in zip(images, ids)])
     # One ideal board for all views: B_k B_0^-1 needs a common board frame.
     square = board_square_px(corners, pattern_size)
-    # Each view's board, and below its field, on a thread per CPU (OpenCV's alignment and
-    # the fits release the GIL; every view's result is its own).
-    boards = each(lambda v: board_homography(v[0][0], v[0][1], v[1], pattern_size, square,
-                                             ecc=(method == "ecc")),
-                  list(zip(unmasked, corners)))
+    boards = [board_homography(im, valid, cor, pattern_size, square, ecc=(method == "ecc"))
+              for (im, valid), cor in zip(unmasked, corners)]
     c0 = ids.index(0)
     inv0 = np.linalg.inv(boards[c0])
     hs = np.empty((len(ids), 3, 3), dtype=np.float64)
@@ -309,8 +305,8 @@ def view_homographies(checker, white, view_boxes, view_ids, pattern_size,
         hs[k] = m / m[2, 2]
     out = (hs,) + ((corners,) if return_corners else ())
     if return_fields:
-        fields = each(lambda v: board_field(v[0][0], v[0][1], v[1], pattern_size, square),
-                      list(zip(unmasked, boards))) if method == "ecc" else [None]
+        fields = [board_field(im, valid, b, pattern_size, square)
+                  for (im, valid), b in zip(unmasked, boards)] if method == "ecc" else [None]
         out += (None if any(f is None for f in fields) else fields,)
     return out if len(out) > 1 else hs
 

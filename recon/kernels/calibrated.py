@@ -57,7 +57,7 @@ _ROWS = 8
 #: Pixels per parallel task of :func:`bands_last`.
 _PIXELS = 64
 #: Bytes of a task's rows of every band in :func:`adjoint_views` (:func:`adjoint_rows`): about
-#: a core's L2 cache (1 MiB on current x86 cores).  A task remakes the view rows it shares
+#: a core's L2 cache (1 MiB on the machine measured).  A task remakes the view rows it shares
 #: with the next, so taller tasks remake a smaller share of them (docs/speed_product.md).
 ADJOINT_TASK_BYTES = 1 << 20
 #: The most view rows a task of :func:`adjoint_views` may need (warps that spread a cube row

@@ -249,14 +249,11 @@ class Transport:
         return out
 
     def prepare(self, bands, width: int) -> None:
-        """Build the geometry, throughput and partitions of ``bands`` (once, before the
-        threads that read them), a view per thread: each view's entries are its own."""
-        def view(k):
+        """Build the geometry, throughput and partitions of ``bands`` (once, before threads)."""
+        for k in range(len(self.views)):
             self.partition(k, width)
             self.throughput(k, 0)
             self.edges_ordered(k)
-
-        each(view, range(len(self.views)))
 
     def nbytes(self) -> int:
         """Memory of the maps and of the throughput images computed so far."""

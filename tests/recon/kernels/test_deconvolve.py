@@ -1,6 +1,7 @@
 """The Richardson–Lucy kernels (:mod:`recon.kernels.deconvolve`) against
 ``skimage.restoration.richardson_lucy``, through :func:`recon.calibration.mask.deconvolve`
-(its reference path inside ``kernels.numpy_only()``)."""
+(its reference path inside ``kernels.numpy_only()``); the TV deconvolution's element-wise
+passes against the NumPy expressions they replace, bit for bit."""
 
 import numpy as np
 import pytest

@@ -313,26 +313,3 @@ def test_release_drops_the_transports_asked_for(monkeypatch):
     assert exact.held() == {"d"}
     exact.release()
     assert exact.held() == set()
-
-
-def test_prepare_on_threads_builds_what_each_view_builds_alone(design):
-    """``prepare`` builds every view's throughput, partition and edge test on a thread per
-    CPU; a transport on the same maps that builds them view after view, on this thread, has
-    the same."""
-    from sim.transport.exact import Transport, load_or_build
-
-    wl = design.wavelengths[[2, 8]]
-    tr = load_or_build(design, wl, seed=0)
-    threaded, alone = (Transport(design, tr.maps, tr.intervals, tr.band_nodes)
-                       for _ in range(2))
-    threaded.prepare(range(len(wl)), 64)
-    assert sorted(threaded._tau) == list(range(len(tr.views)))
-    for k in range(len(alone.views)):
-        alone.partition(k, 64)
-        assert np.array_equal(alone.throughput(k), threaded.throughput(k))
-        assert alone.edges_ordered(k) == threaded.edges_ordered(k)
-    assert sorted(alone._part) == sorted(threaded._part) == [(k, 64) for k in
-                                                             range(len(alone.views))]
-    for key in alone._part:
-        for a, b in zip(alone._part[key], threaded._part[key]):
-            assert np.array_equal(np.asarray(a), np.asarray(b))
