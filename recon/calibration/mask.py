@@ -538,8 +538,9 @@ def _fista_tv_deconvolve(u, kd, power, weight, iterations, rfft, irfft_unscaled,
     v = np.empty_like(u)
     nxt = np.empty_like(u)
     t = 1.0
-    fused = kernels.usable(u, power) and kd.dtype == np.complex64 and \
-        np.dtype(type(factor)) == np.float32
+    # tv_deconvolve's arrays are float32 and complex64, its factor float32: the kernels run
+    # wherever Numba does.
+    fused = kernels.usable(u, power)
     if fused:
         from recon.kernels import deconvolve as kdec
 
