@@ -21,13 +21,17 @@ result does not depend on the number of threads.  The same float32 weights serve
 directions, so the adjoint is exact up to rounding.  A view whose warp is the identity skips
 the gather (``ident``).
 
-Forward: the cube is first laid out pixel-major once for all views (:func:`bands_last`: the
-L bands of a pixel side by side).  Every row of a view's measurement is then one task: the
-warped row of every band is gathered into a (W_v, L) scratch, each entry of :math:`W` adding
-one pixel's L contiguous bands (:func:`_gather_row_pixels`, a vector operation, where the
-band-major cube would need L loads from L rows far apart), turned band-major in cache, then
-added, masked and shifted, into the measurement row, so one row of every mask image and the
-measurement row stay in cache.  An identity view reads the cube's row in place.
+Forward: :func:`forward_views` makes every view in one pass over the cube.  A task lays a
+block of cube rows out pixel-major in a scratch that stays in cache (the L bands of a pixel
+side by side), then makes every view's rows whose warp reads only those cube rows.  A view
+row is gathered into a (W_v, L) scratch, each entry of :math:`W` adding one pixel's L
+contiguous bands (:func:`_gather_row_pixels`, a vector operation, where the band-major cube
+would need L loads from L rows far apart), turned band-major in cache, then added, masked
+and shifted, into the measurement row, so one row of every mask image and the measurement
+row stay in cache.  An identity view reads the cube's row in place.  The view-by-view
+kernels it replaces stay for warps whose rows reach over too many cube rows: the whole cube
+laid out pixel-major once (:func:`bands_last`), then :func:`forward_view` a view, each view
+row a task; both make each row with the same sums in the same order.
 
 Adjoint: :func:`adjoint_views` makes every view's :math:`z` and gathers :math:`W_k^\top z`
 into the cube in one pass over it, pixel-major in cache likewise.  The view-by-view kernels
@@ -49,13 +53,22 @@ from numba import prange
 
 from recon.kernels import jit
 
-__all__ = ["bands_last", "forward_view", "shift_adjoint", "warp_adjoint", "adjoint_views",
-           "adjoint_rows", "ADJOINT_TASK_BYTES", "ADJOINT_MAX_ZROWS"]
+__all__ = ["bands_last", "forward_view", "forward_views", "forward_rows", "shift_adjoint",
+           "warp_adjoint", "adjoint_views", "adjoint_rows", "FORWARD_TASK_BYTES",
+           "FORWARD_MAX_SPAN", "ADJOINT_TASK_BYTES", "ADJOINT_MAX_ZROWS"]
 
 #: Rows per parallel task: enough to amortise the scratch allocation, few enough to balance.
 _ROWS = 8
 #: Pixels per parallel task of :func:`bands_last`.
 _PIXELS = 64
+#: Bytes of a task's cube rows laid out pixel-major in :func:`forward_views`
+#: (:func:`forward_rows`): about a core's L2 cache, with the rows the views' warps reach
+#: past the task's own.
+FORWARD_TASK_BYTES = 1 << 20
+#: The most cube rows past the first that one view row's warp may read for
+#: :func:`forward_views` (warps that reach over more, e.g. a strong rotation, take the
+#: view-by-view kernels).
+FORWARD_MAX_SPAN = 16
 #: Bytes of a task's rows of every band in :func:`adjoint_views` (:func:`adjoint_rows`): about
 #: a core's L2 cache (1 MiB on the machine measured).  A task remakes the view rows it shares
 #: with the next, so taller tasks remake a smaller share of them (docs/speed_product.md).
@@ -140,13 +153,15 @@ def bands_last(x, out):
 
 
 @jit(refcount=False)
-def _gather_row_pixels(xt, indptr, indices, data, i, vt):
+def _gather_row_pixels(xt, indptr, indices, data, shift, i, vt):
     r"""``vt[j, :]`` :math:`= (W x)` at pixel ``j`` of view row ``i``, every band, from the
-    pixel-major cube ``xt`` (N, L): each entry of :math:`W` adds one pixel's L bands."""
+    pixel-major cube ``xt`` (N, L) or a block of its rows: each entry of :math:`W` adds one
+    pixel's L bands.  Cube pixel ``c`` is row ``c - shift`` of ``xt`` (a block that starts at
+    pixel ``shift``)."""
     wv, n_bands = vt.shape
-    base = i * wv
+    r0 = i * wv
     for j in range(wv):
-        r = base + j
+        r = r0 + j
         acc = vt[j]
         e0, e1 = indptr[r], indptr[r + 1]
         if e1 - e0 == 4:
@@ -154,8 +169,8 @@ def _gather_row_pixels(xt, indptr, indices, data, i, vt):
             # bands are written once, where adding entry by entry loads and stores them four
             # times.  The same sum, in the same order.
             d0, d1, d2, d3 = data[e0], data[e0 + 1], data[e0 + 2], data[e0 + 3]
-            s0, s1 = xt[indices[e0]], xt[indices[e0 + 1]]
-            s2, s3 = xt[indices[e0 + 2]], xt[indices[e0 + 3]]
+            s0, s1 = xt[indices[e0] - shift], xt[indices[e0 + 1] - shift]
+            s2, s3 = xt[indices[e0 + 2] - shift], xt[indices[e0 + 3] - shift]
             for l in range(n_bands):
                 acc[l] = d0 * s0[l] + d1 * s1[l] + d2 * s2[l] + d3 * s3[l]
             continue
@@ -163,22 +178,23 @@ def _gather_row_pixels(xt, indptr, indices, data, i, vt):
             acc[l] = 0
         for e in range(e0, e1):
             d = data[e]
-            src = xt[indices[e]]
+            src = xt[indices[e] - shift]
             for l in range(n_bands):
                 acc[l] += d * src[l]
 
 
 @jit(refcount=False)
-def _forward_row(x, xt, cm, a, c0, c1, sub, ident, indptr, indices, data, i, vt, v, acc):
+def _forward_row(x, xt, cm, a, c0, c1, sub, ident, indptr, indices, data, shift, i, vt, v, acc):
     r"""``acc`` :math:`= g[i, :]`: every band of view row ``i`` (see the module docstring);
     ``vt`` (Wv, L) and ``v`` (L, Wv) are scratch for the warped row, pixel-major as gathered
-    and band-major (unused by an identity view, which reads the cube's row in place)."""
+    (from ``xt``, ``shift`` as for :func:`_gather_row_pixels`) and band-major
+    (unused by an identity view, which reads the cube's row in place)."""
     n_bands, wv = v.shape
     wm = acc.shape[0]
     for x_ in range(wm):
         acc[x_] = 0
     if not ident:
-        _gather_row_pixels(xt, indptr, indices, data, i, vt)
+        _gather_row_pixels(xt, indptr, indices, data, shift, i, vt)
         for l in range(n_bands):
             vl = v[l]
             for j in range(wv):
@@ -223,8 +239,73 @@ def forward_view(x, xt, cm, a, c0, c1, sub, ident, indptr, indices, data, wv, ou
         vt = np.empty((wv, x.shape[0]), dtype=out.dtype)
         v = np.empty((x.shape[0], wv), dtype=out.dtype)
         for i in range(task * _ROWS, min(hv, (task + 1) * _ROWS)):
-            _forward_row(x, xt, cm, a, c0, c1, sub, ident, indptr, indices, data, i, vt, v,
+            _forward_row(x, xt, cm, a, c0, c1, sub, ident, indptr, indices, data, 0, i, vt, v,
                          out[i])
+
+
+def forward_rows(n_bands: int, h: int, w: int, cores: int, reach: int) -> int:
+    """Cube rows per task of :func:`forward_views`: with the ``reach`` rows past them that the
+    views' warps read, as many as :data:`FORWARD_TASK_BYTES` holds pixel-major (at least 4),
+    while every core still gets four tasks."""
+    fit = FORWARD_TASK_BYTES // max(1, 4 * n_bands * w) - max(0, reach)
+    share = -(-h // (4 * max(1, cores)))
+    return int(max(1, min(max(4, fit), max(4, share), h)))
+
+
+@jit(parallel=True)
+def forward_views(x, cm, a, c0, c1, sub, ident, wvs, indptr, indices, data, s0, s1, ilo, ihi,
+                  w, out):
+    r"""The measurement :math:`g` of every view in one pass over the cube (overwrites ``out``).
+
+    Task ``t`` lays the cube rows ``s0[t] .. s1[t] - 1`` out pixel-major in a scratch that
+    stays in cache, then makes every view's rows ``ilo[k, t] .. ihi[k, t] - 1`` (the view
+    rows whose warp reads those cube rows only) from it, each as :func:`forward_view` makes
+    it: the same sums in the same order, so the same bits.  Where the view-by-view kernels
+    lay the whole cube out pixel-major and every view's gather reads all of it from memory,
+    this reads the cube once (the rows a task shares with the next, twice).
+
+    Parameters
+    ----------
+    x : ndarray, shape (L, H*W)
+    cm : ndarray, shape (K, L, Hv, Wm)
+    a, c0, c1, sub : ndarray, shape (K, L)
+        As for :func:`forward_view`, one row a view.
+    ident : ndarray of bool, shape (K,)
+    wvs : ndarray of int64, shape (K,)
+        The views' widths :math:`W_v`.
+    indptr : ndarray of int64, shape (K, n)
+        Each view's :math:`W_k` CSR row pointers (``Hv W_v + 1`` of them, the rest unused) into
+        the shared ``indices``/``data``.
+    indices : ndarray of int32
+    data : ndarray
+    s0, s1 : ndarray of int64, shape (tasks,)
+        The cube rows each task lays out.
+    ilo, ihi : ndarray of int64, shape (K, tasks)
+        The view rows each task makes.
+    w : int
+        The cube's width :math:`W`.
+    out : ndarray, shape (K, Hv, Wm)
+    """
+    n_views = cm.shape[0]
+    n_bands = x.shape[0]
+    for task in prange(s0.shape[0]):
+        r0, r1 = s0[task], s1[task]
+        p0 = r0 * w
+        n = (r1 - r0) * w
+        xt = np.empty((n, n_bands), dtype=out.dtype)
+        for p in range(n):
+            o = xt[p]
+            for l in range(n_bands):
+                o[l] = x[l, p0 + p]
+        for k in range(n_views):
+            if ihi[k, task] <= ilo[k, task]:
+                continue
+            wv = wvs[k]
+            vt = np.empty((wv, n_bands), dtype=out.dtype)
+            v = np.empty((n_bands, wv), dtype=out.dtype)
+            for i in range(ilo[k, task], ihi[k, task]):
+                _forward_row(x, xt, cm[k], a[k], c0[k], c1[k], sub[k], ident[k], indptr[k],
+                             indices, data, p0, i, vt, v, out[k, i])
 
 
 @jit(refcount=False)

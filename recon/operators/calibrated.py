@@ -70,9 +70,12 @@ class CalibratedCassi(LinearOperator):
 
     Notes
     -----
-    With the float32 kernels and a view that is not the identity, the forward keeps the
-    pixel-major copy of the cube that its gathers read (one cube's memory) from one call to
-    the next.
+    With the float32 kernels the forward and the adjoint each take every view in one pass
+    over the cube (:func:`~recon.kernels.calibrated.forward_views`,
+    :func:`~recon.kernels.calibrated.adjoint_views`), and hold the views' warps in arrays
+    joined for all views.  Where a warp reaches too far for them, the view-by-view kernels
+    run instead; their forward keeps the pixel-major copy of the cube that its gathers read
+    (one cube's memory) from one call to the next.
     """
 
     def __init__(self, mask_images, offsets, warps=None, cube_shape=None, band_scale=None):
@@ -125,6 +128,7 @@ class CalibratedCassi(LinearOperator):
         self._cmasks = InPrecision(self.mask_images)
         self._kernel_views = None
         self._plan = None
+        self._forward_plan_ = None
         self._row_norms = None
         super().__init__(cs, (k, hv, wm))
 
@@ -307,6 +311,14 @@ class CalibratedCassi(LinearOperator):
         out = np.empty(self.oshape, dtype=np.float32)
         xf = x.reshape(self.n_bands, -1)
         cm = self.mask_images
+        plan = self._forward_plan()
+        if plan:
+            with kernels.threads():
+                kcal.forward_views(xf, cm, plan["a"], plan["c0"], plan["c1"], plan["sub"],
+                                   plan["ident"], plan["wvs"], plan["indptr"],
+                                   plan["indices"], plan["data"], plan["s0"], plan["s1"],
+                                   plan["ilo"], plan["ihi"], self.ishape[2], out)
+            return out
         views = self._kernel_arrays()
         with kernels.threads():
             # The warped views gather from the pixel-major cube, laid out once for all of
@@ -327,6 +339,56 @@ class CalibratedCassi(LinearOperator):
             if xt is not _NO_PIXELS:
                 self._pixels = xt
         return out
+
+    def _forward_plan(self):
+        """The arrays of :func:`recon.kernels.calibrated.forward_views` (made once), or False
+        where a view row is not made from one task's cube rows (a warp whose rows reach over
+        more than :data:`~recon.kernels.calibrated.FORWARD_MAX_SPAN` cube rows, or whose rows
+        do not follow the cube's in order).
+
+        Every view row goes to the task that holds the first cube row its warp reads; the task
+        lays out the cube rows from there to the last row any of its view rows reads."""
+        if self._forward_plan_ is None:
+            from recon.kernels import calibrated as kcal
+
+            views = self._kernel_arrays()
+            n_bands, h, w = self.ishape
+            hv = self.oshape[1]
+            wvs = np.array([wp.out_shape[1] for wp in self.warps], np.int64)
+            first = np.empty((self.n_views, hv), np.int64)
+            last = np.empty((self.n_views, hv), np.int64)
+            for k, (ident, fwd, *_) in enumerate(views):
+                if ident:
+                    first[k] = last[k] = np.arange(hv)
+                else:
+                    first[k], last[k] = _rows_read(*fwd, hv, int(wvs[k]), w)
+            reach = int((last - first).max())
+            order = np.diff(first, axis=1)
+            monotone = all(np.all(d >= 0) or np.all(d <= 0) for d in order)
+            if reach > kcal.FORWARD_MAX_SPAN or not monotone:
+                self._forward_plan_ = False
+                return self._forward_plan_
+            rows = kcal.forward_rows(n_bands, h, w, kernels.cores(), reach)
+            n_tasks = (h + rows - 1) // rows
+            task = first // rows
+            ilo = np.zeros((self.n_views, n_tasks), np.int64)
+            ihi = np.zeros((self.n_views, n_tasks), np.int64)
+            s0 = np.full(n_tasks, h, np.int64)
+            s1 = np.zeros(n_tasks, np.int64)
+            for k in range(self.n_views):
+                # The view rows of a task are consecutive (the rows read follow the view's
+                # rows, forwards or backwards).
+                ts, starts, counts = np.unique(task[k], return_index=True, return_counts=True)
+                ilo[k, ts], ihi[k, ts] = starts, starts + counts
+                np.minimum.at(s0, task[k], first[k])
+                np.maximum.at(s1, task[k], last[k] + 1)
+            s0 = np.minimum(s0, s1)
+            self._forward_plan_ = {
+                "a": np.stack([v[3] for v in views]), "c0": np.stack([v[4] for v in views]),
+                "c1": np.stack([v[5] for v in views]), "sub": np.stack([v[6] for v in views]),
+                "ident": np.array([v[0] for v in views], np.bool_), "wvs": wvs,
+                "s0": s0, "s1": s1, "ilo": ilo, "ihi": ihi, **_joined_csr(views, 1)}
+        return self._forward_plan_
 
     def _fused_plan(self):
         """The arrays of :func:`recon.kernels.calibrated.adjoint_views` (made once), or False
@@ -461,6 +523,47 @@ class CalibratedCassi(LinearOperator):
 _NO_CSR = (np.zeros(1, np.int32), np.zeros(1, np.int32), np.zeros(1, np.float32))
 #: Placeholder pixel-major cube where every view is an identity (the kernel does not read it).
 _NO_PIXELS = np.zeros((1, 1), np.float32)
+
+
+def _joined_csr(views, which: int) -> dict:
+    """The CSR arrays of every view's :math:`W_k` (``which`` 1) or :math:`W_k^\top` (2) joined
+    for a one-pass kernel: ``indptr`` ``(K, n)`` int64, each view's row pointers into the
+    shared ``indices`` and ``data`` (an identity view's all zero)."""
+    csr = [v[which] for v in views]
+    n = max([1] + [c[0].size for c in csr if c is not None])
+    indptr = np.zeros((len(csr), n), np.int64)
+    parts_i, parts_d, nnz = [], [], 0
+    for k, c in enumerate(csr):
+        if c is None:
+            continue
+        ip, ix, dv = c
+        indptr[k, :ip.size] = ip.astype(np.int64) + nnz
+        parts_i.append(ix)
+        parts_d.append(dv)
+        nnz += ix.size
+    return {"indptr": indptr,
+            "indices": np.concatenate(parts_i) if parts_i else np.zeros(1, np.int32),
+            "data": np.concatenate(parts_d) if parts_d else np.zeros(1, np.float32)}
+
+
+def _rows_read(indptr, indices, data, hv: int, wv: int, w: int):
+    """The first and the last cube row that each view row's entries of :math:`W` read (a row
+    without entries takes its neighbour's, so that the rows stay in order)."""
+    starts = indptr[np.arange(hv) * wv].astype(np.int64)
+    stops = indptr[(np.arange(hv) + 1) * wv].astype(np.int64)
+    some = stops > starts
+    first = np.zeros(hv, np.int64)
+    last = np.zeros(hv, np.int64)
+    if some.any():
+        rows = indices // w
+        first[some] = np.minimum.reduceat(rows, starts[some])
+        last[some] = np.maximum.reduceat(rows, starts[some])
+        # Rows without entries: the nearest row before them that has some (or after).
+        idx = np.where(some, np.arange(hv), -1)
+        np.maximum.accumulate(idx, out=idx)
+        idx[idx < 0] = np.argmax(some)
+        first, last = first[idx], last[idx]
+    return first, last
 
 
 def _csr32(m):

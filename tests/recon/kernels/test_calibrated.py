@@ -227,17 +227,66 @@ def test_bands_last_is_the_transpose():
         assert np.array_equal(out, x.T)
 
 
-def test_forward_reuses_its_pixel_major_buffer_safely():
-    """The forward's pixel-major cube is kept between calls (a later call overwrites it
-    whole), and a call that finds it taken, as a concurrent one would, makes its own: every
-    result is the fresh operator's, also from two threads at once."""
+def _view_by_view(op, monkeypatch):
+    """A fresh copy of ``op`` whose forward takes the view-by-view kernels (no view row may
+    reach past its task's cube rows, so the one-pass plan is refused)."""
+    from recon.kernels import calibrated as kcal
+
+    with monkeypatch.context() as m:
+        m.setattr(kcal, "FORWARD_MAX_SPAN", -1)
+        copy = CalibratedCassi(op.mask_images, op.offsets, op.warps, op.ishape, op.band_scale)
+        assert copy._forward_plan() is False
+    return copy
+
+
+@pytest.mark.parametrize("small_tasks", [False, True])
+@pytest.mark.parametrize("name", sorted(OPS))
+def test_one_pass_forward_is_the_view_by_view_kernels_to_the_bit(name, small_tasks,
+                                                                  monkeypatch):
+    """All views in one pass over the cube (recon.kernels.calibrated.forward_views) against the
+    view-by-view kernels it replaces (bands_last, then forward_view a view), bit for bit: with
+    the tasks of the operator's own plan, and with tasks of a few rows, so that view rows
+    read cube rows past their task's own."""
+    from recon.kernels import calibrated as kcal
+
+    if small_tasks:
+        monkeypatch.setattr(kcal, "FORWARD_TASK_BYTES", 1)
+    op = OPS[name]
+    fused = CalibratedCassi(op.mask_images, op.offsets, op.warps, op.ishape, op.band_scale)
+    plan = fused._forward_plan()
+    assert plan
+    if small_tasks and op.ishape[1] > 4:
+        assert plan["s0"].size > 1
+    ref = _view_by_view(op, monkeypatch)
+    rng = np.random.default_rng(53)
+    for _ in range(2):
+        x = rng.standard_normal(op.ishape).astype(np.float32)
+        assert np.array_equal(fused.forward(x), ref.forward(x))
+
+
+def test_one_pass_forward_refuses_warps_that_reach_far():
+    """A view turned by 90 degrees reads a cube column on each of its rows: the plan is
+    refused and the view-by-view kernels give the forward (still the NumPy path's)."""
+    rng = np.random.default_rng(54)
+    h = 40
+    turn = HomographyWarp(np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]),
+                          (h, h), (h, h))
+    op = CalibratedCassi(rng.random((2, 3, h, h + 4)).astype(np.float32),
+                         [[0, 1, 2], [0.5, 1.5, 2.5]], [None, turn], (3, h, h))
+    assert op._forward_plan() is False
+    assert_operator_matches_numpy(op, 56)
+
+
+def test_forward_reuses_its_pixel_major_buffer_safely(monkeypatch):
+    """The view-by-view forward's pixel-major cube is kept between calls (a later call
+    overwrites it whole), and a call that finds it taken, as a concurrent one would, makes its
+    own: every result is the fresh operator's, also from two threads at once."""
     from concurrent.futures import ThreadPoolExecutor
 
-    op = OPS["homographies-5"]
+    op = _view_by_view(OPS["homographies-5"], monkeypatch)
     rng = np.random.default_rng(52)
     xs = [rng.standard_normal(op.ishape).astype(np.float32) for _ in range(4)]
-    fresh = [CalibratedCassi(op.mask_images, op.offsets, op.warps, op.ishape,
-                             op.band_scale).forward(x) for x in xs]
+    fresh = [_view_by_view(op, monkeypatch).forward(x) for x in xs]
     assert np.array_equal(op.forward(xs[0]), fresh[0])
     buf = op._pixels
     assert np.array_equal(op.forward(xs[1]), fresh[1])
@@ -249,6 +298,6 @@ def test_forward_reuses_its_pixel_major_buffer_safely():
             got = list(pool.map(op.forward, xs))
             for g, want in zip(got, fresh):
                 assert np.array_equal(g, want)
-    ident = OPS["identity-int"]
+    ident = _view_by_view(OPS["identity-int"], monkeypatch)
     ident.forward(rng.standard_normal(ident.ishape).astype(np.float32))
     assert not hasattr(ident, "_pixels")            # identity views read the cube in place
