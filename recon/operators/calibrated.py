@@ -388,7 +388,23 @@ class CalibratedCassi(LinearOperator):
                 "c1": np.stack([v[5] for v in views]), "sub": np.stack([v[6] for v in views]),
                 "ident": np.array([v[0] for v in views], np.bool_), "wvs": wvs,
                 "s0": s0, "s1": s1, "ilo": ilo, "ihi": ihi, **_joined_csr(views, 1)}
+            self._hold_once(1, self._forward_plan_)
         return self._forward_plan_
+
+    def _hold_once(self, which: int, plan: dict) -> None:
+        """After a plan joined the views' CSR arrays of :math:`W_k` (``which`` 1) or
+        :math:`W_k^\top` (2) into one copy: the views' arrays, here and in their warps
+        (:meth:`~recon.operators.warp.Warp.share_csr`), become slices of it, so that the
+        operator holds each warp once."""
+        views = self._kernel_arrays()
+        for k, v in enumerate(views):
+            if v[which] is None:
+                continue
+            ip, ix, dv = v[which]
+            b, m = int(plan["indptr"][k, 0]), ix.size
+            shared = (ip, plan["indices"][b:b + m], plan["data"][b:b + m])
+            views[k] = v[:which] + (shared,) + v[which + 1:]
+            self.warps[k].share_csr(**{("forward" if which == 1 else "adjoint"): shared})
 
     def _fused_plan(self):
         """The arrays of :func:`recon.kernels.calibrated.adjoint_views` (made once), or False
@@ -443,6 +459,7 @@ class CalibratedCassi(LinearOperator):
                 "data": np.concatenate(data) if data else np.zeros(1, np.float32),
                 "vlo": vlo, "vhi": vhi, "rows": rows, "zrows": max(zrows, 1),
                 "lo": max(0, -int(a.min())), "hi": hi}
+            self._hold_once(2, self._plan)
         return self._plan
 
     def _adjoint_kernel(self, y, base, scale, out, weights=None):

@@ -93,6 +93,14 @@ class Warp:
         m = self.matrix().astype(np.float32).tocsr()
         return m, m.T.tocsr()
 
+    def share_csr(self, forward=None, adjoint=None) -> None:
+        r"""Hold ``forward`` (:math:`W`) and ``adjoint`` (:math:`W^\top`), each a CSR triple
+        ``(indptr, indices, data)`` with the values of :meth:`sparse_pair`'s, in place of the
+        warp's own arrays: a caller that copied them (the one-pass kernels of
+        :class:`~recon.operators.CalibratedCassi` join every view's into one array) then
+        holds one copy, not two.  A warp that keeps no matrix has nothing to give up."""
+        return None
+
     def norm_parts(self) -> tuple[np.ndarray, np.ndarray | None]:
         r"""Row statistics of the matrix used for closed-form row norms.
 
@@ -334,6 +342,19 @@ class HomographyWarp(Warp):
 
     def sparse_pair(self):
         return self._m, self._mt
+
+    def share_csr(self, forward=None, adjoint=None):
+        for name, csr in (("_m", forward), ("_mt", adjoint)):
+            if csr is None:
+                continue
+            own = getattr(self, name)
+            indptr, indices, data = csr
+            # The caller's arrays replace the warp's own only if they hold the same matrix.
+            if not (np.array_equal(indptr, own.indptr) and np.array_equal(indices, own.indices)
+                    and np.array_equal(data, own.data)):
+                raise InputError("share_csr: the arrays are not this warp's matrix")
+            # In place: SciPy's constructor would copy them.
+            own.indptr, own.indices, own.data = indptr, indices, data
 
     def norm_parts(self):
         if self._n_c is None:

@@ -11,6 +11,7 @@ import pytest
 
 from kernel_checks import RTOL32, assert_operator_matches_numpy, rel
 from recon import kernels
+from recon.errors import InputError
 from recon.operators import CalibratedCassi, Flip, HomographyWarp, Translate, dot_test
 from recon.operators.base import weighted_base
 
@@ -275,6 +276,33 @@ def test_one_pass_forward_refuses_warps_that_reach_far():
                          [[0, 1, 2], [0.5, 1.5, 2.5]], [None, turn], (3, h, h))
     assert op._forward_plan() is False
     assert_operator_matches_numpy(op, 56)
+
+
+def test_the_operator_holds_each_warp_once():
+    """Once the one-pass plans have joined the views' CSR arrays, the warps hold slices of
+    the joined arrays instead of their own (one copy, not two), and every path still gives
+    what it gave: the kernels, the warps' NumPy path."""
+    rng = np.random.default_rng(57)
+    warps = [None] + [_homography(rng, (9, 11), (9, 11)) for _ in range(3)]
+    cm = rng.random((4, 3, 9, 15)).astype(np.float32)
+    offsets = rng.uniform(0, 3, (4, 3))
+    op = CalibratedCassi(cm, offsets, warps, (3, 9, 11))
+    x = rng.standard_normal(op.ishape).astype(np.float32)
+    y = rng.standard_normal(op.oshape).astype(np.float32)
+    before = [w.apply(x) for w in warps[1:]]
+    fwd, adj = op.forward(x), op.adjoint(y)
+    fplan, aplan = op._forward_plan(), op._fused_plan()
+    for w, was in zip(warps[1:], before):
+        m, mt = w.sparse_pair()
+        for arr, joined in ((m.indices, fplan["indices"]), (m.data, fplan["data"]),
+                            (mt.indices, aplan["indices"]), (mt.data, aplan["data"])):
+            assert np.shares_memory(arr, joined)
+        assert np.array_equal(w.apply(x), was)
+    assert np.array_equal(op.forward(x), fwd)
+    assert np.array_equal(op.adjoint(y), adj)
+    other = warps[2].sparse_pair()[0]
+    with pytest.raises(InputError, match="not this warp's matrix"):
+        warps[1].share_csr(forward=(other.indptr, other.indices, other.data))
 
 
 def test_forward_reuses_its_pixel_major_buffer_safely(monkeypatch):
