@@ -72,10 +72,11 @@ class CalibratedCassi(LinearOperator):
     -----
     With the float32 kernels the forward and the adjoint each take every view in one pass
     over the cube (:func:`~recon.kernels.calibrated.forward_views`,
-    :func:`~recon.kernels.calibrated.adjoint_views`), and hold the views' warps in arrays
-    joined for all views.  Where a warp reaches too far for them, the view-by-view kernels
-    run instead; their forward keeps the pixel-major copy of the cube that its gathers read
-    (one cube's memory) from one call to the next.
+    :func:`~recon.kernels.calibrated.adjoint_views`); they read the views' warps from arrays
+    joined for all views, which the warps then hold in place of their own
+    (:meth:`~recon.operators.warp.Warp.share_csr`).  Where a warp reaches too far for them,
+    the view-by-view kernels run instead; their forward keeps the pixel-major copy of the
+    cube that its gathers read (one cube's memory) from one call to the next.
     """
 
     def __init__(self, mask_images, offsets, warps=None, cube_shape=None, band_scale=None):
@@ -420,19 +421,12 @@ class CalibratedCassi(LinearOperator):
             last = np.minimum(first + rows, h)
             vlo = np.zeros((self.n_views, n_tasks), np.int64)
             vhi = np.zeros((self.n_views, n_tasks), np.int64)
-            indptr = np.zeros((self.n_views, h * w + 1), np.int64)
-            indices, data, nnz = [], [], 0
             for k, (ident, _, adj, a, c0, c1, sub) in enumerate(views):
                 wv = self.warps[k].out_shape[1]
                 if ident:
                     vlo[k], vhi[k] = first, last
-                    indptr[k] = nnz
                     continue
                 ip, ix, dv = adj
-                indptr[k] = ip.astype(np.int64) + nnz
-                indices.append(ix)
-                data.append(dv)
-                nnz += ix.size
                 # The span of view rows each task's entries of W^T read: the tasks' entries
                 # are consecutive runs of the CSR arrays, so a reduction from each non-empty
                 # task's start to the next one's is over that task's entries exactly.
@@ -454,9 +448,7 @@ class CalibratedCassi(LinearOperator):
                 "a": a, "c0": np.stack([v[4] for v in views]),
                 "c1": np.stack([v[5] for v in views]), "sub": np.stack([v[6] for v in views]),
                 "ident": np.array([v[0] for v in views], np.bool_), "wvs": wvs,
-                "indptr": indptr,
-                "indices": np.concatenate(indices) if indices else np.zeros(1, np.int32),
-                "data": np.concatenate(data) if data else np.zeros(1, np.float32),
+                **_joined_csr(views, 2),
                 "vlo": vlo, "vhi": vhi, "rows": rows, "zrows": max(zrows, 1),
                 "lo": max(0, -int(a.min())), "hi": hi}
             self._hold_once(2, self._plan)
