@@ -63,8 +63,7 @@ def main(argv=None) -> int:
 
     from kaleidospec.calibrate import calibrate
     from kaleidospec.reconstruct import calibrated_operator, first_views, normalised
-    from recon.solvers.band_metric import (DEFAULT_EXPONENT, FLOOR, band_column_norms_sq,
-                                           band_metric)
+    from recon.solvers.band_metric import band_metric
     from sim.optics.design import get_design
 
     views = [int(v) for v in args.views.split(",")]
@@ -75,14 +74,13 @@ def main(argv=None) -> int:
         for n in views:
             model = calibrated_operator(cal, first_views(n))
             op, _ = normalised(model, np.zeros(model.oshape, np.float32))
-            # The metric's shape s_l as band_metric makes it (the same probe, seed 0), so
-            # that alpha = d_l / s_l is the product's estimate.
-            c = band_column_norms_sq(op)
-            s = np.maximum(c / c.max(), FLOOR) ** DEFAULT_EXPONENT
             t0 = time.perf_counter()
             d = band_metric(op, np.float32)
             t_product = time.perf_counter() - t0
-            product = float(np.median(d / s))
+            # d = alpha s with the shape s largest, 1, at the strongest band: alpha is the
+            # largest d_l (the product's estimate), and s = d / alpha.
+            product = float(d.max())
+            s = d / product
             t0 = time.perf_counter()
             exact, pairs = converged_alpha(op, s, args.tol)
             t_exact = time.perf_counter() - t0

@@ -142,14 +142,23 @@ def bands_last(x, out):
         The cube, each band flattened.
     out : ndarray, shape (N, L)
     """
-    n_bands, n = x.shape
+    n = x.shape[1]
     # Each task writes its block of ``out`` contiguously and reads L short runs of ``x``.
     n_tasks = (n + _PIXELS - 1) // _PIXELS
     for task in prange(n_tasks):
-        for p in range(task * _PIXELS, min(n, (task + 1) * _PIXELS)):
-            o = out[p]
-            for l in range(n_bands):
-                o[l] = x[l, p]
+        lo = task * _PIXELS
+        _lay_out(x, lo, out[lo:min(n, lo + _PIXELS)])
+
+
+@jit(refcount=False)
+def _lay_out(x, p0, out):
+    r"""``out[p, l] = x[l, p0 + p]`` for every row ``p`` of ``out``: pixels ``p0 ..`` of the
+    cube ``x`` (L, N), pixel-major."""
+    n_bands = x.shape[0]
+    for p in range(out.shape[0]):
+        o = out[p]
+        for l in range(n_bands):
+            o[l] = x[l, p0 + p]
 
 
 @jit(refcount=False)
@@ -247,9 +256,15 @@ def forward_rows(n_bands: int, h: int, w: int, cores: int, reach: int) -> int:
     """Cube rows per task of :func:`forward_views`: with the ``reach`` rows past them that the
     views' warps read, as many as :data:`FORWARD_TASK_BYTES` holds pixel-major (at least 4),
     while every core still gets four tasks."""
-    fit = FORWARD_TASK_BYTES // max(1, 4 * n_bands * w) - max(0, reach)
+    return _task_rows(FORWARD_TASK_BYTES // max(1, 4 * n_bands * w) - max(0, reach), 4, h,
+                      cores)
+
+
+def _task_rows(fit: int, least: int, h: int, cores: int) -> int:
+    """``fit`` cube rows a task, or ``least`` if fewer, but no more than give every core four
+    tasks (unless that is below ``least``), and at most ``h``."""
     share = -(-h // (4 * max(1, cores)))
-    return int(max(1, min(max(4, fit), max(4, share), h)))
+    return int(max(1, min(max(least, fit), max(least, share), h)))
 
 
 @jit(parallel=True)
@@ -293,10 +308,7 @@ def forward_views(x, cm, a, c0, c1, sub, ident, wvs, indptr, indices, data, s0, 
         p0 = r0 * w
         n = (r1 - r0) * w
         xt = np.empty((n, n_bands), dtype=out.dtype)
-        for p in range(n):
-            o = xt[p]
-            for l in range(n_bands):
-                o[l] = x[l, p0 + p]
+        _lay_out(x, p0, xt)
         for k in range(n_views):
             if ihi[k, task] <= ilo[k, task]:
                 continue
@@ -414,9 +426,7 @@ def adjoint_rows(n_bands: int, h: int, w: int, cores: int) -> int:
     """Cube rows per task of :func:`adjoint_views`: as many as :data:`ADJOINT_TASK_BYTES`
     holds (at least 8: a task remakes the one or two view rows it shares with the next, so
     fewer rows would remake a larger share), while every core still gets four tasks."""
-    fit = ADJOINT_TASK_BYTES // max(1, 4 * n_bands * w)
-    share = -(-h // (4 * max(1, cores)))
-    return int(max(1, min(max(8, fit), max(8, share), h)))
+    return _task_rows(ADJOINT_TASK_BYTES // max(1, 4 * n_bands * w), 8, h, cores)
 
 
 @jit(refcount=False)

@@ -384,11 +384,8 @@ class CalibratedCassi(LinearOperator):
                 np.minimum.at(s0, task[k], first[k])
                 np.maximum.at(s1, task[k], last[k] + 1)
             s0 = np.minimum(s0, s1)
-            self._forward_plan_ = {
-                "a": np.stack([v[3] for v in views]), "c0": np.stack([v[4] for v in views]),
-                "c1": np.stack([v[5] for v in views]), "sub": np.stack([v[6] for v in views]),
-                "ident": np.array([v[0] for v in views], np.bool_), "wvs": wvs,
-                "s0": s0, "s1": s1, "ilo": ilo, "ihi": ihi, **_joined_csr(views, 1)}
+            self._forward_plan_ = {**_view_table(views, wvs), **_joined_csr(views, 1),
+                                   "s0": s0, "s1": s1, "ilo": ilo, "ihi": ihi}
             self._hold_once(1, self._forward_plan_)
         return self._forward_plan_
 
@@ -440,15 +437,13 @@ class CalibratedCassi(LinearOperator):
             if zrows > kcal.ADJOINT_MAX_ZROWS:
                 self._plan = False
                 return self._plan
-            wvs = np.array([wp.out_shape[1] for wp in self.warps], np.int64)
-            a = np.stack([v[3] for v in views])
+            table = _view_table(views, np.array([wp.out_shape[1] for wp in self.warps],
+                                                np.int64))
+            a, wvs = table["a"], table["wvs"]
             hi = max(1, int(max((a[k].max() + wvs[k] + 1 - self.oshape[2])
                                 for k in range(self.n_views))))
             self._plan = {
-                "a": a, "c0": np.stack([v[4] for v in views]),
-                "c1": np.stack([v[5] for v in views]), "sub": np.stack([v[6] for v in views]),
-                "ident": np.array([v[0] for v in views], np.bool_), "wvs": wvs,
-                **_joined_csr(views, 2),
+                **table, **_joined_csr(views, 2),
                 "vlo": vlo, "vhi": vhi, "rows": rows, "zrows": max(zrows, 1),
                 "lo": max(0, -int(a.min())), "hi": hi}
             self._hold_once(2, self._plan)
@@ -532,6 +527,14 @@ class CalibratedCassi(LinearOperator):
 _NO_CSR = (np.zeros(1, np.int32), np.zeros(1, np.int32), np.zeros(1, np.float32))
 #: Placeholder pixel-major cube where every view is an identity (the kernel does not read it).
 _NO_PIXELS = np.zeros((1, 1), np.float32)
+
+
+def _view_table(views, wvs: np.ndarray) -> dict:
+    """The per-view arrays both one-pass kernels take, one row a view: the offsets' integer
+    parts ``a``, the taps ``c0``, ``c1``, ``sub``, the identity flags and the widths ``wvs``."""
+    return {"a": np.stack([v[3] for v in views]), "c0": np.stack([v[4] for v in views]),
+            "c1": np.stack([v[5] for v in views]), "sub": np.stack([v[6] for v in views]),
+            "ident": np.array([v[0] for v in views], np.bool_), "wvs": wvs}
 
 
 def _joined_csr(views, which: int) -> dict:
