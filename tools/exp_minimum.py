@@ -175,10 +175,15 @@ def main(argv=None) -> int:
                 t0 = time.perf_counter()
                 pdhg_tv(op, g, tau, args.iters, args.theta, callback=record)
                 last = trace[-1]
-                print(f"    the product stops {product['objective'] - last['objective']:.4g} "
-                      f"({(product['objective'] / last['objective'] - 1) * 100:.2f} %) above "
-                      f"the lowest F found, at {product['psnr'] - last['psnr']:+.2f} dB from "
-                      f"its PSNR ({time.perf_counter() - t0:.0f} s)", flush=True)
+                if product["objective"] <= last["objective"]:
+                    print(f"    the product's F is below the primal-dual solve's after "
+                          f"{args.iters} iterations: no lower F found (more --iters, or "
+                          f"another --theta) ({time.perf_counter() - t0:.0f} s)", flush=True)
+                else:
+                    print(f"    the product stops {product['objective'] - last['objective']:.4g} "
+                          f"({(product['objective'] / last['objective'] - 1) * 100:.2f} %) "
+                          f"above the lowest F found, at {product['psnr'] - last['psnr']:+.2f} "
+                          f"dB from its PSNR ({time.perf_counter() - t0:.0f} s)", flush=True)
                 report.append({"design": name, "scene": scene, "views": n, "tau": tau,
                                "theta": args.theta, "product": product, "primal_dual": trace})
                 del op, g, truth, res
