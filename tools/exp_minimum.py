@@ -47,7 +47,6 @@ convex optimization", ICCV 2011.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import time
 from pathlib import Path
@@ -189,9 +188,9 @@ def main(argv=None) -> int:
                 del op, g, truth, res
             del frame, native
     if args.json:
-        from recon.io.atomic import write_text
+        from kaleidospec.experiments import write_json
 
-        write_text(Path(args.json), json.dumps(report, indent=1))
+        write_json(Path(args.json), report)
     return 0
 
 

@@ -22,7 +22,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import time
 from pathlib import Path
@@ -95,9 +94,9 @@ def main(argv=None) -> int:
             report.append(row)
             del op, model
     if args.json:
-        from recon.io.atomic import write_text
+        from kaleidospec.experiments import write_json
 
-        write_text(Path(args.json), json.dumps(report, indent=1))
+        write_json(Path(args.json), report)
     return 0
 
 
