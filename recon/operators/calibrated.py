@@ -353,9 +353,10 @@ class CalibratedCassi(LinearOperator):
             from recon.kernels import calibrated as kcal
 
             views = self._kernel_arrays()
+            table = _view_table(views, self.warps)
+            wvs = table["wvs"]
             n_bands, h, w = self.ishape
             hv = self.oshape[1]
-            wvs = np.array([wp.out_shape[1] for wp in self.warps], np.int64)
             first = np.empty((self.n_views, hv), np.int64)
             last = np.empty((self.n_views, hv), np.int64)
             for k, (ident, fwd, *_) in enumerate(views):
@@ -384,7 +385,7 @@ class CalibratedCassi(LinearOperator):
                 np.minimum.at(s0, task[k], first[k])
                 np.maximum.at(s1, task[k], last[k] + 1)
             s0 = np.minimum(s0, s1)
-            self._forward_plan_ = {**_view_table(views, wvs), **_joined_csr(views, 1),
+            self._forward_plan_ = {**table, **_joined_csr(views, 1),
                                    "s0": s0, "s1": s1, "ilo": ilo, "ihi": ihi}
             self._hold_once(1, self._forward_plan_)
         return self._forward_plan_
@@ -437,8 +438,7 @@ class CalibratedCassi(LinearOperator):
             if zrows > kcal.ADJOINT_MAX_ZROWS:
                 self._plan = False
                 return self._plan
-            table = _view_table(views, np.array([wp.out_shape[1] for wp in self.warps],
-                                                np.int64))
+            table = _view_table(views, self.warps)
             a, wvs = table["a"], table["wvs"]
             hi = max(1, int(max((a[k].max() + wvs[k] + 1 - self.oshape[2])
                                 for k in range(self.n_views))))
@@ -529,12 +529,14 @@ _NO_CSR = (np.zeros(1, np.int32), np.zeros(1, np.int32), np.zeros(1, np.float32)
 _NO_PIXELS = np.zeros((1, 1), np.float32)
 
 
-def _view_table(views, wvs: np.ndarray) -> dict:
+def _view_table(views, warps) -> dict:
     """The per-view arrays both one-pass kernels take, one row a view: the offsets' integer
-    parts ``a``, the taps ``c0``, ``c1``, ``sub``, the identity flags and the widths ``wvs``."""
+    parts ``a``, the taps ``c0``, ``c1``, ``sub``, the identity flags and the widths ``wvs``
+    of the views' ``warps``."""
     return {"a": np.stack([v[3] for v in views]), "c0": np.stack([v[4] for v in views]),
             "c1": np.stack([v[5] for v in views]), "sub": np.stack([v[6] for v in views]),
-            "ident": np.array([v[0] for v in views], np.bool_), "wvs": wvs}
+            "ident": np.array([v[0] for v in views], np.bool_),
+            "wvs": np.array([wp.out_shape[1] for wp in warps], np.int64)}
 
 
 def _joined_csr(views, which: int) -> dict:
