@@ -61,6 +61,9 @@ __all__ = ["bands_last", "forward_view", "forward_views", "forward_rows", "shift
 _ROWS = 8
 #: Pixels per parallel task of :func:`bands_last`.
 _PIXELS = 64
+#: Pixels per block of :func:`_to_band_major`: a block's bands (8 x L floats) stay in the
+#: first-level cache while each band's run of 8 is written.
+_BLOCK = 8
 #: Bytes of a task's cube rows laid out pixel-major in :func:`forward_views`
 #: (:func:`forward_rows`): about a core's L2 cache, with the rows the views' warps reach
 #: past the task's own.
@@ -193,6 +196,26 @@ def _gather_row_pixels(xt, indptr, indices, data, shift, i, vt):
 
 
 @jit(refcount=False)
+def _to_band_major(vt, v):
+    r"""``v[l, j] = vt[j, l]``: a warped row from pixel-major (as gathered) to band-major.
+
+    In blocks of :data:`_BLOCK` pixels: each band's values of a block are read from the
+    block's few cache lines and written as one contiguous run, where a band at a time over
+    the whole row reads a value from every line of the row (docs/speed_product.md)."""
+    wv, n_bands = vt.shape
+    whole = wv - wv % _BLOCK
+    for j0 in range(0, whole, _BLOCK):
+        block = vt[j0:j0 + _BLOCK]
+        for l in range(n_bands):
+            run = v[l, j0:j0 + _BLOCK]
+            for j in range(_BLOCK):
+                run[j] = block[j, l]
+    for j in range(whole, wv):
+        for l in range(n_bands):
+            v[l, j] = vt[j, l]
+
+
+@jit(refcount=False)
 def _forward_row(x, xt, cm, a, c0, c1, sub, ident, indptr, indices, data, shift, i, vt, v, acc):
     r"""``acc`` :math:`= g[i, :]`: every band of view row ``i`` (see the module docstring);
     ``vt`` (Wv, L) and ``v`` (L, Wv) are scratch for the warped row, pixel-major as gathered
@@ -204,10 +227,7 @@ def _forward_row(x, xt, cm, a, c0, c1, sub, ident, indptr, indices, data, shift,
         acc[x_] = 0
     if not ident:
         _gather_row_pixels(xt, indptr, indices, data, shift, i, vt)
-        for l in range(n_bands):
-            vl = v[l]
-            for j in range(wv):
-                vl[j] = vt[j, l]
+        _to_band_major(vt, v)
     base = i * wv
     for l in range(n_bands):
         vl = x[l, base:base + wv] if ident else v[l]

@@ -136,10 +136,13 @@ class BlurredOperator(LinearOperator):
         if self._mean_rn is None:
             reach = self.forward(np.ones(self.ishape, np.float32))
             n = int(np.count_nonzero(reach > 1e-6 * float(reach.max()))) if reach.max() > 0 else 0
+            from recon.probes import rademacher
+
             rng = np.random.default_rng(0)
             acc = 0.0
+            z = np.empty(self.ishape, np.float32)
             for _ in range(NORM_PROBES):
-                z = rng.choice(np.array([-1.0, 1.0], np.float32), size=self.ishape)
+                rademacher(rng, self.ishape, out=z)
                 acc += float(np.sum(self.forward(z).astype(np.float64) ** 2))
             self._mean_rn = acc / NORM_PROBES / max(n, 1)
         return self._mean_rn

@@ -242,8 +242,9 @@ def power_iteration(op: LinearOperator, n_iter: int, dtype=np.float32, seed: int
     (``adjoint_add``, :math:`0 + H^\top y`, the same values as ``adjoint``), not into a new
     cube an iteration.
     """
-    rng = np.random.default_rng(seed)
-    x = rng.standard_normal(op.ishape).astype(dtype)
+    from recon.probes import standard_normal
+
+    x = standard_normal(np.random.default_rng(seed), op.ishape, dtype)
     x /= np.linalg.norm(x)
     w = None if weights is None else np.asarray(weights).astype(dtype).reshape(
         (-1,) + (1,) * (x.ndim - 1))
@@ -379,7 +380,9 @@ def preconditioned_norm_sq(op: LinearOperator, phi_inv: np.ndarray, n_iter: int 
     rng = np.random.default_rng(seed)
     if gram_is_diagonal(op, phi_inv, dtype, rng):
         return 1.0
-    x = rng.standard_normal(op.ishape).astype(dtype)
+    from recon.probes import standard_normal
+
+    x = standard_normal(rng, op.ishape, dtype)
     x /= np.linalg.norm(x)
     lam = 0.0
     for _ in range(int(n_iter)):

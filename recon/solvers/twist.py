@@ -122,7 +122,9 @@ def norm_estimate(op: LinearOperator, start: np.ndarray | None = None, n_iter: i
     dtype = np.float64 if start is not None and start.dtype == np.float64 else np.float32
     v = None if start is None else np.array(start, dtype=dtype)
     if v is None or not np.any(v):
-        v = np.random.default_rng(seed).standard_normal(op.ishape).astype(dtype)
+        from recon.probes import standard_normal
+
+        v = standard_normal(np.random.default_rng(seed), op.ishape, dtype)
     v /= np.linalg.norm(v)
     alphas: list[float] = []
     betas: list[float] = []

@@ -228,6 +228,19 @@ def test_bands_last_is_the_transpose():
         assert np.array_equal(out, x.T)
 
 
+def test_a_warped_row_goes_band_major_in_blocks_and_its_tail():
+    from recon.kernels import calibrated as kcal
+
+    rng = np.random.default_rng(52)
+    # Widths below, at and between multiples of the block (the tail alone, whole blocks,
+    # blocks and a tail), and one band.
+    for wv, n_bands in ((1, 26), (7, 26), (8, 26), (8 * 3, 1), (8 * 4 + 5, 26), (867, 26)):
+        vt = rng.standard_normal((wv, n_bands)).astype(np.float32)
+        v = np.full((n_bands, wv), np.nan, np.float32)
+        kcal._to_band_major(vt, v)
+        assert np.array_equal(v, vt.T)
+
+
 def _view_by_view(op, monkeypatch):
     """A fresh copy of ``op`` whose forward takes the view-by-view kernels (no view row may
     reach past its task's cube rows, so the one-pass plan is refused)."""
