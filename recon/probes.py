@@ -1,9 +1,8 @@
 r"""Random probe cubes for the solvers' estimates (power iterations, Hutchinson probes).
 
 A cube at the ``paper`` scale has 21 million voxels.  Drawn in one call, a standard normal
-cube is first made in float64 and a Rademacher cube from an int64 index array, temporaries of
-two and three times the cube's float32 size, each of whose pages the system has to supply
-afresh.  These draw the same values in slabs of :data:`SLAB` voxels written straight into
+cube is first made in float64 and a Rademacher cube from an int64 index array: temporaries of
+twice the float32 cube's size, each of whose pages the system has to supply afresh.  These draw the same values in slabs of :data:`SLAB` voxels written straight into
 the float32 cube: NumPy's generators consume their bit stream value by value, so a
 sequence of smaller draws continues it exactly as one large draw does (the tests compare
 them to the bit).  A solve set up with these is the solve set up with the single draws.

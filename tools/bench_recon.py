@@ -563,7 +563,8 @@ def bench_calibrated(design_name, scenes, views, repeat, warm, quick, converge=T
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--quick", action="store_true", help="small sizes (a smoke run)")
-    p.add_argument("--out", type=Path, default=Path("bench_out"), help="output folder")
+    p.add_argument("--out", type=Path, default=Path("out/bench_recon"),
+                   help="output folder (default out/bench_recon)")
     p.add_argument("--iters", type=int, default=50)
     p.add_argument("--solvers", default="gap-tv,twist,fista-tv")
     p.add_argument("--configs", default="a,b")
