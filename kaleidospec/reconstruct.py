@@ -24,8 +24,8 @@ given, else the noise :math:`\bar\sigma` and the views to set its own.
 (:func:`kaleidospec.instrument.oracle_operator`) on the ground-truth grid: the reference that
 separates calibration errors from the reconstruction's own.  :class:`Reconstructor` sets either
 problem up once and solves many frames (a video), warm-started and optionally with a temporal
-term.  Every path ends in :func:`solve_views` (or the same scaling and weight in
-:class:`Reconstructor`), so a frame is reconstructed alike wherever it comes from.
+term.  Every path ends in :func:`solve_views` (or the same scaling, weight and step metric
+in :class:`Reconstructor`), so a frame is reconstructed alike wherever it comes from.
 """
 
 from __future__ import annotations
@@ -79,6 +79,23 @@ def first_views(n_views) -> tuple[int, ...]:
     if n != n_views or not 1 <= n <= 9:
         raise InputError(f"the number of views must be an integer 1..9, got {n_views!r}")
     return VIEW_ORDER[:n]
+
+
+def _takes_band_metric(prior) -> bool:
+    """Whether FISTA-TV solves with ``prior`` (None: TV from the weight) in the band metric
+    under :data:`DEFAULTS`'s ``metric`` (:func:`recon.solvers.fista_tv`, ``"auto"``), a prior
+    of two stages aside (see :meth:`Reconstructor.solver_options`)."""
+    from recon.priors import TVPrior
+    from recon.priors.base import stages
+    from recon.solvers.band_metric import band_scalable, band_weighted
+
+    if DEFAULTS["metric"] == "scalar":
+        return False
+    if prior is None:
+        return band_scalable(TVPrior)
+    if stages(prior) is not None:
+        return False
+    return band_scalable(prior) or band_weighted(prior)
 
 
 def _check_calibrated(cal, view_ids) -> None:
@@ -347,8 +364,10 @@ class Reconstructor:
       (:func:`kaleidospec.instrument.oracle_operator`) on the ground-truth grid, to separate
       the engine's behaviour from calibration errors.
 
-    Either way the operator and GAP-TV's step :math:`1/\lVert\Phi^{-1/2}H\rVert^2` are
-    computed once, not per frame.
+    Either way the operator and the solver's step are computed once, not per frame: GAP-TV's
+    :math:`1/\lVert\Phi^{-1/2}H\rVert^2`, FISTA-TV's band metric (where the prior takes it,
+    as :func:`solve_views` takes it for a still) or :math:`\lVert H\rVert^2`
+    (:meth:`solver_options`).
 
     Parameters
     ----------
@@ -402,6 +421,7 @@ class Reconstructor:
         self.kind = kind
         self._step = None
         self._lipschitz = None
+        self._band_metric = None
 
     @classmethod
     def calibrated(cls, cal, n_views: int, **kw) -> "Reconstructor":
@@ -471,13 +491,24 @@ class Reconstructor:
                                      n_views=self.op.oshape[0], threads=self.threads)
         return {"prior": self._prior}
 
-    def solver_options(self) -> dict:
-        """GAP-TV's step, or FISTA-TV's Lipschitz constant ‖H‖² (each computed on
-        first use: the operator is the sequence's, so a frame does not repeat the power
-        iteration, 15 forward/adjoint pairs, which is as much as a warm frame's iterations),
-        and prox threads."""
+    def solver_options(self, prior=None) -> dict:
+        """GAP-TV's step and prox threads, or FISTA-TV's step: the band metric where the
+        prior takes it, as :func:`solve_views` solves a still (:data:`DEFAULTS`'s
+        ``metric``), else the Lipschitz constant ‖H‖².  Each is computed on first use: the
+        operator is the sequence's, so a frame does not repeat the estimate (15 or 16
+        forward/adjoint pairs, as many as a warm frame's iterations).
+
+        ``prior`` is the prior object the solve takes (None: TV, built by the solver from
+        ``tau``).  A prior of two stages keeps the scalar step for both (the band metric
+        would leave the second stage to estimate ‖H‖² at every frame)."""
         opts = {}
-        if self.solver == "fista-tv":
+        if self.solver == "fista-tv" and _takes_band_metric(prior):
+            if self._band_metric is None:
+                from recon.solvers.band_metric import band_metric
+
+                self._band_metric = band_metric(self.op, np.float32)
+            opts.update(metric=DEFAULTS["metric"], band_metric=self._band_metric)
+        elif self.solver == "fista-tv":
             if self._lipschitz is None:
                 from recon.solvers import operator_norm_sq
 
@@ -525,15 +556,17 @@ class Reconstructor:
 
             spatial = self.prior_options().get("prior") or TVPrior(self.tau,
                                                                    threads=self.threads)
+            temporal = TemporalPrior(spatial, x0_bm, float(mu))
             res = solve(self.solver, self.op, g, iters=int(iters), x0=x0_bm,
-                        callback=callback, prior=TemporalPrior(spatial, x0_bm, float(mu)),
-                        **self.solver_options())
+                        callback=callback, prior=temporal, **self.solver_options(temporal))
         else:
             from recon.solvers import solve
 
             mu = 0.0
+            prior_kw = self.prior_options()
             res = solve(self.solver, self.op, g, iters=int(iters), x0=x0_bm,
-                        callback=callback, **self.prior_options(), **self.solver_options())
+                        callback=callback, **prior_kw,
+                        **self.solver_options(prior_kw.get("prior")))
         cube = np.ascontiguousarray(np.moveaxis(res.x, 0, 2), dtype=np.float32)
         if not np.all(np.isfinite(cube)):
             raise RuntimeError(f"solver {self.solver!r} diverged (non-finite values)")

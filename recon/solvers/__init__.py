@@ -96,6 +96,7 @@ def _two_stages(fn, op, g, plan, *, iters, tau, x0, tol, callback, **kw) -> Solv
     if "metric" in second_kw:           # the band metric takes only priors that declare it
         second_kw["metric"] = "scalar"
         second_kw.pop("metric_exponent", None)
+        second_kw.pop("band_metric", None)
     second = fn(op, g, iters=n_second, tau=tau, x0=first.x, tol=None,
                 callback=second_callback if callback is not None else None, **second_kw)
     return SolverResult(x=second.x, iterations=first.iterations + second.iterations,

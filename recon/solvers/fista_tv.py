@@ -62,7 +62,8 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
              lipschitz: float | None = None, isotropic: bool | None = None,
              objective: bool = False, restart: bool = True,
              threads: int | None = None, metric: str = "scalar",
-             metric_exponent: float | None = None, start: str = "adjoint") -> SolverResult:
+             metric_exponent: float | None = None, band_metric=None,
+             start: str = "adjoint") -> SolverResult:
     r"""Reconstruct with FISTA and a prior (by default TV).
 
     Parameters
@@ -109,6 +110,12 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
     metric_exponent : float, optional
         The band metric's exponent :math:`p` in [0, 1]
         (:data:`recon.solvers.band_metric.DEFAULT_EXPONENT` if omitted).
+    band_metric : array_like, shape (L,), optional
+        The band metric's diagonal :math:`d_l`
+        (:func:`recon.solvers.band_metric.band_metric` of this operator), where it has been
+        estimated already: the loop takes it instead of estimating it again (frames of a
+        sequence through one operator).  Only where the loop runs in the band metric, and
+        not with ``metric_exponent``.
     start : {"adjoint", "normalised"}
         The start when ``x0`` is omitted: the gradient step from zero (:math:`H^\top g/L`,
         or :math:`D^{-1}H^\top g` in the band metric), or the normalised back-projection
@@ -129,16 +136,29 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
     bands = _use_band_metric(metric, prior, lipschitz)
     loop = IterationLoop(tol, callback, restarts=restart)
     if bands:
-        from recon.solvers.band_metric import (DEFAULT_EXPONENT, BandMetric, band_metric,
-                                               band_scalable)
+        from recon.solvers.band_metric import DEFAULT_EXPONENT, BandMetric, band_scalable
+        from recon.solvers.band_metric import band_metric as estimate_metric
 
-        exponent = DEFAULT_EXPONENT if metric_exponent is None else metric_exponent
-        bm = BandMetric(band_metric(op, dtype, exponent), dtype,
-                        weighted=not band_scalable(prior))
+        if band_metric is None:
+            exponent = DEFAULT_EXPONENT if metric_exponent is None else metric_exponent
+            d = estimate_metric(op, dtype, exponent)
+        elif metric_exponent is not None:
+            raise InputError("band_metric is estimated with its exponent already: give "
+                             "band_metric or metric_exponent, not both")
+        else:
+            d = np.asarray(band_metric, dtype=np.float64)
+            if d.shape != op.ishape[:1]:
+                raise InputError(f"band_metric must hold one value per band, shape "
+                                 f"{op.ishape[:1]}, got {d.shape}")
+        bm = BandMetric(d, dtype, weighted=not band_scalable(prior))
         lip = bm.dmax
     else:
         if metric_exponent is not None:
             raise InputError("metric_exponent sets the band metric: give metric='bands'")
+        if band_metric is not None:
+            raise InputError("band_metric is the band metric's: this solve runs in the scalar "
+                             "metric (metric='scalar', a lipschitz, or a prior the band metric "
+                             "does not take)")
         bm = None
         lip = operator_norm_sq(op, dtype=dtype) if lipschitz is None else float(lipschitz)
     if not lip > 0:

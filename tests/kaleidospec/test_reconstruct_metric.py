@@ -63,32 +63,40 @@ def test_solver_metric():
 
 
 def test_reconstructor_computes_fistas_step_once(problem, monkeypatch):
-    # A sequence's frames share the operator: FISTA-TV's ||H||^2 is estimated once, and the
-    # frames come out as a plain solve of each would give them, to the bit.
+    # A sequence's frames share the operator: FISTA-TV's band metric is estimated once (and
+    # no ||H||^2 besides), and the frames come out as a plain solve of each in the
+    # application's metric would give them, to the bit.
     import sys
 
+    from kaleidospec.reconstruct import DEFAULTS, Reconstructor
     from recon import solvers
-    from kaleidospec.reconstruct import Reconstructor
+    from recon.solvers import band_metric as bmod
     from recon.solvers import fista_tv
 
     op, g = problem
     rec = Reconstructor(op, lambda frame, meta: frame, solver="fista-tv", tau=0.01)
-    calls = []
-    real = solvers.operator_norm_sq
+    calls = {"metric": 0, "norm": 0}
+    real_metric, real_norm = bmod.band_metric, solvers.operator_norm_sq
 
-    def counted(*a, **k):
-        calls.append(1)
-        return real(*a, **k)
-    monkeypatch.setattr(solvers, "operator_norm_sq", counted)
-    monkeypatch.setattr(sys.modules["recon.solvers.fista_tv"], "operator_norm_sq", counted)
+    def counted_metric(*a, **k):
+        calls["metric"] += 1
+        return real_metric(*a, **k)
+
+    def counted_norm(*a, **k):
+        calls["norm"] += 1
+        return real_norm(*a, **k)
+    monkeypatch.setattr(bmod, "band_metric", counted_metric)
+    monkeypatch.setattr(solvers, "operator_norm_sq", counted_norm)
+    monkeypatch.setattr(sys.modules["recon.solvers.fista_tv"], "operator_norm_sq", counted_norm)
     frames = [g, g * np.float32(0.8)]
     cubes = []
     for i, frame in enumerate(frames):
         gm = rec.measurement(frame, {})
         cubes.append(rec.solve(gm, iters=10, x0=None if i == 0 else cubes[-1])[0])
-    assert len(calls) == 1
+    assert calls == {"metric": 1, "norm": 0}
     monkeypatch.undo()
     gm = rec.measurement(frames[1], {})
     x0 = np.ascontiguousarray(np.moveaxis(cubes[0], 2, 0))
-    want = fista_tv(rec.op, gm, iters=10, tau=0.01, x0=x0).x
-    np.testing.assert_array_equal(cubes[1], np.moveaxis(want, 0, 2))
+    want = fista_tv(rec.op, gm, iters=10, tau=0.01, x0=x0, metric=DEFAULTS["metric"])
+    assert want.info["metric"] == "bands"
+    np.testing.assert_array_equal(cubes[1], np.moveaxis(want.x, 0, 2))

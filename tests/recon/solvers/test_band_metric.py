@@ -251,3 +251,49 @@ def test_matches_the_objective_helper(weak_band_op):
     res = fista_tv(weak_band_op, g, iters=20, tau=0.02, objective=True, metric="bands")
     assert res.objective[-1] == pytest.approx(objective(weak_band_op, g, res.x, tau=0.02),
                                               rel=1e-12)
+
+
+def test_a_metric_estimated_already_is_taken_as_it_is(weak_band_op, monkeypatch):
+    """band_metric= replaces the estimate (no forward/adjoint pair for it) and gives the solve
+    that estimating it gives; a solve in the scalar metric, or with an exponent, refuses it."""
+    import recon.solvers.band_metric as bmod
+
+    g = weak_band_op.forward(_truth())
+    d = band_metric(weak_band_op, np.float64)
+    ref = fista_tv(weak_band_op, g, iters=25, tau=0.02, metric="bands")
+    assert ref.info["band_metric"] == d.tolist()
+
+    def no_estimate(*a, **k):
+        raise AssertionError("the metric was estimated again")
+
+    monkeypatch.setattr(bmod, "band_metric", no_estimate)
+    got = fista_tv(weak_band_op, g, iters=25, tau=0.02, metric="auto", band_metric=d)
+    assert np.array_equal(got.x, ref.x) and got.info["band_metric"] == d.tolist()
+    other = fista_tv(weak_band_op, g, iters=25, tau=0.02, metric="bands", band_metric=2 * d)
+    assert not np.allclose(other.x, ref.x)
+    nlr = make_prior("subspace-nlr", shape=SHAPE, dtype=np.float64, weight=0.02)
+    for kw, match in (({"metric": "scalar"}, "scalar metric"),
+                      ({"metric": "auto", "lipschitz": 3.0}, "scalar metric"),
+                      ({"metric": "auto", "prior": nlr, "tau": None}, "scalar metric"),
+                      ({"metric": "bands", "metric_exponent": 0.5}, "not both"),
+                      ({"metric": "bands", "band_metric": d[:2]}, "one value per band"),
+                      ({"metric": "bands", "band_metric": -d}, "positive")):
+        opts = {"tau": 0.02, "band_metric": d, **kw}
+        with pytest.raises(InputError, match=match):
+            fista_tv(weak_band_op, g, iters=2, **opts)
+
+
+def test_two_stages_leave_the_given_metric_to_the_first(weak_band_op):
+    """subspace-nlr through solve(): its subspace-tv stage takes the metric given, its
+    denoiser stage the scalar step (without the metric, which it would refuse)."""
+    from recon.solvers import solve
+
+    g = weak_band_op.forward(_truth()).astype(np.float32)
+    nlr = make_prior("subspace-nlr", shape=SHAPE, dtype=np.float32, weight=0.02,
+                     solver="fista")
+    d = band_metric(weak_band_op, np.float32)
+    res = solve("fista-tv", weak_band_op, g, iters=300, tol=1e-2, prior=nlr, metric="auto",
+                band_metric=d)
+    assert res.info["first_stage"]["iterations"] < 300        # the rule stopped it
+    assert res.iterations > res.info["first_stage"]["iterations"]
+    assert res.info["metric"] == "scalar"
