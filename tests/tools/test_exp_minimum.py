@@ -46,3 +46,10 @@ def test_an_operator_with_negative_entries_is_refused():
     neg = MatrixOperator(-np.asarray(op.matrix), ishape=SHAPE, oshape=(40,))
     with pytest.raises(ValueError, match="negative"):
         load_tool("exp_minimum").pdhg_tv(neg, g, 0.05, 5)
+
+
+@pytest.mark.parametrize("scales", ["0.5,x", "0,1", "-1"])
+def test_bad_tau_scales_are_refused_before_any_work(scales, capsys):
+    with pytest.raises(SystemExit) as e:
+        load_tool("exp_minimum").main(["--tau-scales", scales])
+    assert e.value.code == 2 and "--tau-scales" in capsys.readouterr().err
