@@ -83,19 +83,16 @@ def first_views(n_views) -> tuple[int, ...]:
 
 def _takes_band_metric(prior) -> bool:
     """Whether FISTA-TV solves with ``prior`` (None: TV from the weight) in the band metric
-    under :data:`DEFAULTS`'s ``metric`` (:func:`recon.solvers.fista_tv`, ``"auto"``), a prior
-    of two stages aside (see :meth:`Reconstructor.solver_options`)."""
+    under :data:`DEFAULTS`'s ``metric``, as the solver decides it
+    (:func:`recon.solvers.fista_tv.uses_band_metric`), a prior of two stages aside (see
+    :meth:`Reconstructor.solver_options`)."""
     from recon.priors import TVPrior
     from recon.priors.base import stages
-    from recon.solvers.band_metric import band_scalable, band_weighted
+    from recon.solvers.fista_tv import uses_band_metric
 
-    if DEFAULTS["metric"] == "scalar":
+    if prior is not None and stages(prior) is not None:
         return False
-    if prior is None:
-        return band_scalable(TVPrior)
-    if stages(prior) is not None:
-        return False
-    return band_scalable(prior) or band_weighted(prior)
+    return uses_band_metric(DEFAULTS["metric"], TVPrior if prior is None else prior)
 
 
 def _check_calibrated(cal, view_ids) -> None:

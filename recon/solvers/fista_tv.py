@@ -53,7 +53,7 @@ from recon.priors.base import previous_value, prox_value, state_change
 from recon.solvers.base import (IterationLoop, SolverResult, check_problem, data_misfit,
                                 operator_norm_sq, prior_value, resolve_prior)
 
-__all__ = ["fista_tv"]
+__all__ = ["fista_tv", "uses_band_metric"]
 
 
 def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
@@ -133,7 +133,7 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
 
     if start not in STARTS:
         raise InputError(f"start must be one of {', '.join(STARTS)}, got {start!r}")
-    bands = _use_band_metric(metric, prior, lipschitz)
+    bands = uses_band_metric(metric, prior, lipschitz)
     loop = IterationLoop(tol, callback, restarts=restart)
     if bands:
         from recon.solvers.band_metric import DEFAULT_EXPONENT, BandMetric, band_scalable
@@ -266,8 +266,10 @@ def _prox_result_value(kept, prior, x: np.ndarray, bm, work: np.ndarray) -> floa
     return prior_value(prior, x) if value is None else value
 
 
-def _use_band_metric(metric: str, prior, lipschitz) -> bool:
-    """Whether the loop runs in the band metric (see :func:`fista_tv`'s ``metric``)."""
+def uses_band_metric(metric: str, prior, lipschitz=None) -> bool:
+    """Whether :func:`fista_tv` runs in the band metric with ``metric``, ``prior`` (an object
+    or class whose ``band_scalable`` / ``band_weighted`` say so) and ``lipschitz`` (see
+    :func:`fista_tv`'s ``metric``); an input error for a combination it refuses."""
     from recon.solvers.band_metric import METRICS, band_scalable, band_weighted
 
     if metric not in METRICS:
