@@ -38,8 +38,8 @@ import numpy as np
 from recon.errors import InputError
 
 __all__ = ["DEFAULTS", "TAU_PER_VIEW", "TAU_PER_NOISE", "first_views", "tv_weight",
-           "prior_weight", "unit_row_scale", "normalised", "measurement_noise", "design_noise",
-           "solver_metric", "solve_views", "calibrated_operator", "frame_measurements",
+           "prior_weight", "unit_row_scale", "row_scale", "normalised", "measurement_noise",
+           "design_noise", "solver_metric", "solve_views", "calibrated_operator", "frame_measurements",
            "reconstruct_views", "reconstruct_oracle", "Reconstructor"]
 
 #: Reconstruction defaults: FISTA-TV run until the relative change of the cube
@@ -79,6 +79,18 @@ def first_views(n_views) -> tuple[int, ...]:
     if n != n_views or not 1 <= n <= 9:
         raise InputError(f"the number of views must be an integer 1..9, got {n_views!r}")
     return VIEW_ORDER[:n]
+
+
+#: Name of GAP-TV's preconditioned step in an operator's constants (float32).
+GAP_STEP = "gap_step_float32"
+
+
+def _gap_step(op) -> float:
+    r"""GAP-TV's step :math:`1/\|\Phi^{-1/2} H\|^2` (:math:`\Phi` the rows' squared norms)."""
+    from recon.solvers.base import preconditioned_norm_sq, row_norms_sq, safe_reciprocal
+
+    phi_inv = safe_reciprocal(row_norms_sq(op), np.float32)
+    return 1.0 / preconditioned_norm_sq(op, phi_inv, dtype=np.float32)
 
 
 def _takes_band_metric(prior) -> bool:
@@ -163,11 +175,25 @@ def unit_row_scale(op) -> float:
     return 1.0 if pos.size == 0 else 1.0 / math.sqrt(float(pos.mean()))
 
 
-def normalised(op, g):
-    """``(s·H, s·g)`` with :math:`s` from :func:`unit_row_scale`."""
+#: Name of the row scale :math:`s` (:func:`unit_row_scale`) in an operator's constants.
+ROW_SCALE = "row_scale"
+
+
+def row_scale(op, constants=None) -> float:
+    """:func:`unit_row_scale` of ``op``, read from its ``constants``
+    (:class:`recon.solvers.constants.OperatorConstants`) where they hold it, else estimated
+    (and added to them)."""
+    if constants is None:
+        return unit_row_scale(op)
+    return constants.get(ROW_SCALE, lambda: unit_row_scale(op), check=lambda v: np.ndim(v) == 0)
+
+
+def normalised(op, g, constants=None):
+    """``(s·H, s·g)`` with :math:`s` from :func:`unit_row_scale` (read from the operator's
+    ``constants``, :func:`row_scale`, where given)."""
     from recon.operators import ScaledOperator
 
-    s = unit_row_scale(op)
+    s = row_scale(op, constants)
     return ScaledOperator(op, s), (g * np.float32(s)).astype(g.dtype, copy=False)
 
 
@@ -197,7 +223,7 @@ def solver_metric(solver: str, metric) -> dict:
 def solve_views(op, g, n_views: int, *, solver: str = DEFAULTS["solver"],
                 iters: int = DEFAULTS["iters"], tol=DEFAULTS["tol"], tau=None, x0=None, truth=None,
                 wavelengths=None, progress: bool = False, noise=None, prior=None,
-                metric=DEFAULTS["metric"], history: bool = False):
+                metric=DEFAULTS["metric"], history: bool = False, constants=None):
     """Reconstruct measurements ``g`` of ``n_views`` views through ``op`` the way every path of
     the application does: operator and data brought to unit mean row norm (:func:`normalised`),
     the prior ``prior`` (a :data:`recon.priors.PRIORS` name; None: ``"tv"``) with the weight
@@ -206,19 +232,27 @@ def solve_views(op, g, n_views: int, *, solver: str = DEFAULTS["solver"],
     iterations, fewer once the relative change falls below ``tol``; ``None`` runs them all;
     FISTA's step ``metric``, :func:`solver_metric`; with ``truth``, the final metrics and,
     with ``history``, the PSNR after every iteration, which the application's outputs do not
-    use).  Adds ``seconds`` and ``noise`` (in the unit-row-norm units)."""
+    use).  ``constants``: the operator's constants from earlier solves
+    (:func:`kaleidospec.solve_constants.constants_for`), the row scale and FISTA's step taken
+    from them where they hold them.  Adds ``seconds``, ``noise`` (in the unit-row-norm
+    units) and, with ``constants``, ``constants_estimated`` (the names this solve estimated;
+    empty when it read them all)."""
     from recon.app import reconstruct
 
-    op, g = normalised(op, g)
+    op, g = normalised(op, g, constants)
+    options = solver_metric(solver, metric)
+    if constants is not None and solver == "fista-tv":
+        options["constants"] = constants
     noise = None if noise is None else float(noise) * op.scale
     t0 = time.perf_counter()
     tau = prior_weight(prior, solver, tau, n_views, noise)
     cube, info = reconstruct(g, op, solver=solver, iters=iters, tol=tol, tau=tau, x0=x0,
                              truth=truth, wavelengths=wavelengths, progress=progress,
-                             prior=prior, noise=noise, history=history,
-                             **solver_metric(solver, metric))
+                             prior=prior, noise=noise, history=history, **options)
     info["seconds"] = time.perf_counter() - t0
     info["noise"] = noise
+    if constants is not None:
+        info["constants_estimated"] = list(constants.estimated)
     return cube, info
 
 
@@ -258,7 +292,8 @@ def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = DEFAULTS["
                       iters: int = DEFAULTS["iters"], tol=DEFAULTS["tol"], tau=None, x0=None,
                       truth=None, progress: bool = False, design=None,
                       model: str | None = None, prior: str | None = None,
-                      metric=DEFAULTS["metric"], history: bool = False):
+                      metric=DEFAULTS["metric"], history: bool = False,
+                      cached_constants: bool = True):
     """Reconstruct from the first ``n_views`` views of a raw frame with a calibration.
 
     Parameters
@@ -283,6 +318,10 @@ def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = DEFAULTS["
         using ``design`` or the design in the sidecar) or already on it.
     model : str, optional
         The calibrated forward model (:func:`calibrated_operator`).
+    cached_constants : bool
+        Take the operator's constants (its row scale, FISTA's step) from the cache folder and
+        keep the ones estimated there (:mod:`kaleidospec.solve_constants`); False estimates
+        them and keeps nothing.
 
     Returns
     -------
@@ -292,7 +331,8 @@ def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = DEFAULTS["
         ``metrics`` and ``truth_grid`` (the truth on the reconstruction grid).
     """
     from kaleidospec.instrument import design_of
-    from kaleidospec.models import cube_grid, truth_on_grid
+    from kaleidospec.models import cube_grid, model_of, truth_on_grid
+    from kaleidospec.solve_constants import constants_for
     from recon.calibration import check_design
 
     ids = first_views(n_views)
@@ -308,7 +348,9 @@ def reconstruct_views(frame, metadata, cal, n_views, *, solver: str = DEFAULTS["
                              iters=iters, tol=tol, tau=tau, x0=x0, truth=tg,
                              wavelengths=cal.wavelengths, progress=progress,
                              noise=measurement_noise(g, metadata, cal.noise), prior=prior,
-                             metric=metric, history=history)
+                             metric=metric, history=history,
+                             constants=constants_for(cal, ids, model_of(cal, model))
+                             if cached_constants else None)
     info["view_ids"] = list(ids)
     if tg is not None:
         info["truth_grid"] = tg
@@ -388,17 +430,22 @@ class Reconstructor:
         ``offset(metadata) -> (oy, ox)``: where the operator's grid sits on the truth's.
     noise : (2,) array_like, optional
         The sensor's photon-transfer curve (:func:`measurement_noise`).
+    constants : recon.solvers.constants.OperatorConstants, optional
+        The operator's constants from earlier solves (:mod:`kaleidospec.solve_constants`):
+        the row scale and the solvers' steps are taken from it where it holds them.
     """
 
     def __init__(self, op, measure, *, solver: str = "gap-tv", tau: float | None = None,
                  threads: int | None = None, to_grid=None, offset=None, kind: str = "",
-                 noise=None, prior: str | None = None):
+                 noise=None, prior: str | None = None, constants=None):
         from recon.operators import ScaledOperator
         from recon.priors import check_prior_name
+        from recon.solvers.constants import OperatorConstants
 
         # The scaling and TV weight of solve_views, so that a video frame is reconstructed
         # exactly as `kaleidospec run` reconstructs a still.
-        scale = unit_row_scale(op)
+        self.constants = OperatorConstants() if constants is None else constants
+        scale = row_scale(op, self.constants)
         self.op = ScaledOperator(op, scale)
         self._raw = measure
         self.solver = solver
@@ -416,15 +463,13 @@ class Reconstructor:
         self._to_grid = to_grid
         self._offset = offset
         self.kind = kind
-        self._step = None
-        self._lipschitz = None
-        self._band_metric = None
 
     @classmethod
     def calibrated(cls, cal, n_views: int, **kw) -> "Reconstructor":
         """From a calibration: the first ``n_views`` views (centre, left, right, top, ...)."""
         from kaleidospec.instrument import design_of
-        from kaleidospec.models import grid_offset, truth_mover
+        from kaleidospec.models import grid_offset, model_of, truth_mover
+        from kaleidospec.solve_constants import constants_for
 
         ids = first_views(n_views)
         _check_calibrated(cal, ids)
@@ -442,7 +487,7 @@ class Reconstructor:
         return cls(op, lambda frame, meta: frame_measurements(frame, meta, cal, ids),
                    to_grid=to_grid,
                    offset=lambda meta: grid_offset(design_of(meta), cal), kind="calibrated",
-                   noise=cal.noise, **kw)
+                   noise=cal.noise, constants=constants_for(cal, ids, model_of(cal, None)), **kw)
 
     @classmethod
     def oracle(cls, design, n_views: int, **kw) -> "Reconstructor":
@@ -491,34 +536,34 @@ class Reconstructor:
     def solver_options(self, prior=None) -> dict:
         """GAP-TV's step and prox threads, or FISTA-TV's step: the band metric where the
         prior takes it, as :func:`solve_views` solves a still (:data:`DEFAULTS`'s
-        ``metric``), else the Lipschitz constant ‖H‖².  Each is computed on first use: the
-        operator is the sequence's, so a frame does not repeat the estimate (15 or 16
-        forward/adjoint pairs, as many as a warm frame's iterations).
+        ``metric``), else the Lipschitz constant ‖H‖².  Each is computed on first use and
+        kept in :attr:`constants`: the operator is the sequence's, so a frame does not
+        repeat the estimate (15 or 16 forward/adjoint pairs, as many as a warm frame's
+        iterations).
 
         ``prior`` is the prior object the solve takes (None: TV, built by the solver from
         ``tau``).  A prior of two stages keeps the scalar step for both (the band metric
         would leave the second stage to estimate ‖H‖² at every frame)."""
+        from recon.solvers.constants import band_metric_name, lipschitz_name
+
         opts = {}
+        memo = self.constants
         if self.solver == "fista-tv" and _takes_band_metric(prior):
-            if self._band_metric is None:
-                from recon.solvers.band_metric import band_metric
+            from recon.solvers.band_metric import DEFAULT_EXPONENT, band_metric
 
-                self._band_metric = band_metric(self.op, np.float32)
-            opts.update(metric=DEFAULTS["metric"], band_metric=self._band_metric)
+            d = memo.get(band_metric_name(DEFAULT_EXPONENT, np.float32),
+                         lambda: band_metric(self.op, np.float32),
+                         check=lambda v: np.shape(v) == self.op.ishape[:1])
+            opts.update(metric=DEFAULTS["metric"], band_metric=d)
         elif self.solver == "fista-tv":
-            if self._lipschitz is None:
-                from recon.solvers import operator_norm_sq
+            from recon.solvers import operator_norm_sq
 
-                self._lipschitz = operator_norm_sq(self.op, dtype=np.float32)
-            opts["lipschitz"] = self._lipschitz
+            opts["lipschitz"] = memo.get(lipschitz_name(np.float32),
+                                         lambda: operator_norm_sq(self.op, dtype=np.float32),
+                                         check=lambda v: np.ndim(v) == 0)
         if self.solver == "gap-tv":
-            if self._step is None:
-                from recon.solvers.base import (preconditioned_norm_sq, row_norms_sq,
-                                                safe_reciprocal)
-
-                phi_inv = safe_reciprocal(row_norms_sq(self.op), np.float32)
-                self._step = 1.0 / preconditioned_norm_sq(self.op, phi_inv, dtype=np.float32)
-            opts["step"] = self._step
+            opts["step"] = memo.get(GAP_STEP, lambda: _gap_step(self.op),
+                                    check=lambda v: np.ndim(v) == 0)
             if self.threads is not None:
                 opts["threads"] = self.threads
         return opts

@@ -18,8 +18,9 @@ cold start (``cold_iters``, from :math:`H^\top\Phi^{-1}g`).  Optionally a tempor
 independent, so a long sequence is split into segments that run in parallel: in local
 processes (all cores by default) or, given a scheduler address, on a Dask cluster whose
 workers see the same output folder (``dask.distributed`` is imported only then).  The operator
-(and GAP-TV's step) is built once per segment, not per frame
-(:class:`kaleidospec.reconstruct.Reconstructor`).
+and the solver's step are made once per segment, not per frame
+(:class:`kaleidospec.reconstruct.Reconstructor`; the step is read from the cache where a solve
+with that calibration and those views kept it, :mod:`kaleidospec.solve_constants`).
 
 Resume.  Every file is written atomically (temporary file + rename) and each stage of a frame
 ends with a seal of its files' checksums (``checks/``): a raw frame is done when its seal matches

@@ -45,7 +45,11 @@ FISTA's scalar step and then with the default step metric (``auto``: a step per 
 the prior allows it, ``recon.solvers.band_metric``), one after the other in the process: the
 before/after of the band metric.  ``--priors tv,subspace-tv`` solves each frame with every
 prior listed (default ``tv``, the prior of the speed targets; ``subspace-tv`` is what ``run``
-and ``demo`` solve by default).  ``--compare`` times the reference paths (the
+and ``demo`` solve by default).  ``--constants`` says where a converged solve takes the
+operator's constants (its row scale and FISTA's step, ``kaleidospec.solve_constants``):
+``cache`` (the default, as ``run``: read where a solve with this calibration and views kept
+them, else estimated and kept), ``estimate`` (estimated, nothing kept), or both one after the
+other; each row says which it was.  ``--compare`` times the reference paths (the
 FFT blur, the unfused gradient step of the row scaling, the float64 PSNR history) against the
 current ones, alternated in the process, with the largest relative difference of their
 outputs.  Scenes (``--scenes``): ``natural`` and the CAVE development scene
@@ -56,13 +60,14 @@ Usage: python3 tools/bench_recon.py [--quick] [--out DIR] [--iters 50] [--solver
        python3 tools/bench_recon.py --configs small,paper [--scenes natural,egyptian_statue]
                                     [--views 1,5] [--warm] [--compare] [--no-solve]
                                     [--metrics scalar,auto] [--priors tv,subspace-tv]
-                                    [--repeat 3]
+                                    [--constants estimate,cache] [--repeat 3]
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import itertools
 import json
 import os
 import resource
@@ -437,7 +442,7 @@ def rel_diff(a, b) -> float:
 
 
 def bench_calibrated(design_name, scenes, views, repeat, warm, quick, converge=True,
-                     compare=False, metrics=None, priors=("tv",)):
+                     compare=False, metrics=None, priors=("tv",), constants=("cache",)):
     """The rows of one calibrated design (see the module docstring); returns the report."""
     from kaleidospec.calibrate import calibrate, is_cached
     from kaleidospec.instrument import release_transports, render_scene
@@ -515,27 +520,30 @@ def bench_calibrated(design_name, scenes, views, repeat, warm, quick, converge=T
             # The converged solve with every prior (--priors) and step metric (--metrics)
             # asked for, one after the other on the same frame; the first prior's last cube
             # is kept (for --warm).
-            for prior in priors:
-                for metric in metrics:
-                    with PeakRSS() as mem:
-                        c, info = reconstruct_views(frame, meta, cal, n, truth=truths[n],
-                                                    design=design, model=model, metric=metric,
-                                                    prior=prior)
-                    mrow = dict(row, prior=prior, metric=metric,
-                                metric_used=info["solver_info"].get("metric"),
-                                solve_s=info["seconds"], iters=info["iters"],
-                                psnr=info["metrics"]["psnr"], peak_rss_mb=mem.peak_mb,
-                                rss_start_mb=mem.start_mb,
-                                objective=(info["objective"] or [None])[-1])
-                    print(f"  {design_name:5s} {scene:16s} {n} view(s): forward "
-                          f"{fwd * 1e3:7.1f} ms  adjoint {adj * 1e3:7.1f} ms  iteration "
-                          f"{it_s:6.3f} s  | {prior:11s} metric {metric:6s} converged "
-                          f"{info['iters']:3d} it {info['seconds']:7.2f} s  PSNR "
-                          f"{mrow['psnr']:6.2f} dB  peak RSS {mem.peak_mb:6.0f} MB", flush=True)
-                    rows.append(mrow)
-                    if prior == priors[0]:
-                        cube = c
-                    del c
+            for prior, metric, how in itertools.product(priors, metrics, constants):
+                with PeakRSS() as mem:
+                    c, info = reconstruct_views(frame, meta, cal, n, truth=truths[n],
+                                                design=design, model=model, metric=metric,
+                                                prior=prior, cached_constants=how == "cache")
+                made = info.get("constants_estimated")
+                state = ("estimated" if how == "estimate" else
+                         "from the cache" if not made else "estimated, now cached")
+                mrow = dict(row, prior=prior, metric=metric,
+                            metric_used=info["solver_info"].get("metric"),
+                            solve_s=info["seconds"], iters=info["iters"],
+                            psnr=info["metrics"]["psnr"], peak_rss_mb=mem.peak_mb,
+                            rss_start_mb=mem.start_mb, constants=state,
+                            objective=(info["objective"] or [None])[-1])
+                print(f"  {design_name:5s} {scene:16s} {n} view(s): forward "
+                      f"{fwd * 1e3:7.1f} ms  adjoint {adj * 1e3:7.1f} ms  iteration "
+                      f"{it_s:6.3f} s  | {prior:11s} metric {metric:6s} converged "
+                      f"{info['iters']:3d} it {info['seconds']:7.2f} s  PSNR "
+                      f"{mrow['psnr']:6.2f} dB  peak RSS {mem.peak_mb:6.0f} MB  "
+                      f"constants {state}", flush=True)
+                rows.append(mrow)
+                if prior == priors[0]:
+                    cube = c
+                del c
             cubes[n] = cube
             if warm and n > 1 and 1 in cubes:
                 with PeakRSS() as mem:
@@ -589,6 +597,11 @@ def main(argv=None):
                    help="priors of the calibrated converged solves, each with every metric "
                         "(e.g. tv,subspace-tv: the prior of the speed targets and what run and "
                         "demo solve by default); --warm takes the first")
+    p.add_argument("--constants", default="cache",
+                   help="where the calibrated converged solves take their operator constants "
+                        "(row scale, band metric): cache (as run does: read where kept, else "
+                        "estimated and kept), estimate (estimated, nothing kept), or both, "
+                        "e.g. estimate,cache, one after the other on each frame")
     p.add_argument("--no-reference", action="store_true",
                    help="skip the plain NumPy GAP-TV on (a) and the authors'-settings TwIST "
                         "on (b)")
@@ -599,6 +612,9 @@ def main(argv=None):
     unknown = [v for v in priors if v not in PRIORS]
     if not priors or unknown:
         p.error(f"--priors: choose from {', '.join(PRIORS)} (got {args.priors!r})")
+    constants = tuple(v for v in args.constants.split(",") if v)
+    if not constants or any(v not in ("cache", "estimate") for v in constants):
+        p.error(f"--constants: cache, estimate or both (got {args.constants!r})")
     args.out.mkdir(parents=True, exist_ok=True)
     names = [s for s in args.solvers.split(",") if s]
     kernels = _kernels()
@@ -620,7 +636,7 @@ def main(argv=None):
                 bench_calibrated(key, scenes, views, args.repeat, args.warm, args.quick,
                                  converge=not args.no_solve, compare=args.compare,
                                  metrics=[m for m in args.metrics.split(",") if m],
-                                 priors=priors))
+                                 priors=priors, constants=constants))
             summary += _check_calibrated(report["calibrated"][-1])
             continue
         if key not in ("a", "b"):
@@ -700,7 +716,7 @@ def _check_calibrated(res):
                 ok = "met" if r["solve_s"] <= r["target_s"] else "MISSED"
                 lines.append(f"target {res['design']} {sc['scene']} {r['views']} view(s) <= "
                              f"{r['target_s']:g} s: {r['solve_s']:.2f} s, {r['iters']} it, "
-                             f"{r['psnr']:.2f} dB {ok}")
+                             f"{r['psnr']:.2f} dB, constants {r['constants']} {ok}")
     return lines
 
 

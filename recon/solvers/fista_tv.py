@@ -63,7 +63,7 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
              objective: bool = False, restart: bool = True,
              threads: int | None = None, metric: str = "scalar",
              metric_exponent: float | None = None, band_metric=None,
-             start: str = "adjoint") -> SolverResult:
+             start: str = "adjoint", constants=None) -> SolverResult:
     r"""Reconstruct with FISTA and a prior (by default TV).
 
     Parameters
@@ -121,6 +121,9 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
         or :math:`D^{-1}H^\top g` in the band metric), or the normalised back-projection
         :math:`H^\top g / H^\top H\mathbf 1` (:mod:`recon.solvers.start`: without the
         mask's pattern; one forward and one adjoint more).
+    constants : recon.solvers.constants.OperatorConstants, optional
+        This operator's constants from earlier solves: the band metric or :math:`\|H\|^2`
+        is taken from it where it holds them (else estimated and added to it).
 
     Returns
     -------
@@ -141,7 +144,14 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
 
         if band_metric is None:
             exponent = DEFAULT_EXPONENT if metric_exponent is None else metric_exponent
-            d = estimate_metric(op, dtype, exponent)
+            if constants is None:
+                d = estimate_metric(op, dtype, exponent)
+            else:
+                from recon.solvers.constants import band_metric_name
+
+                d = constants.get(band_metric_name(exponent, dtype),
+                                  lambda: estimate_metric(op, dtype, exponent),
+                                  check=lambda v: np.shape(v) == op.ishape[:1])
         elif metric_exponent is not None:
             raise InputError("band_metric is estimated with its exponent already: give "
                              "band_metric or metric_exponent, not both")
@@ -160,7 +170,15 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
                              "metric (metric='scalar', a lipschitz, or a prior the band metric "
                              "does not take)")
         bm = None
-        lip = operator_norm_sq(op, dtype=dtype) if lipschitz is None else float(lipschitz)
+        if lipschitz is not None:
+            lip = float(lipschitz)
+        elif constants is None:
+            lip = operator_norm_sq(op, dtype=dtype)
+        else:
+            from recon.solvers.constants import lipschitz_name
+
+            lip = constants.get(lipschitz_name(dtype), lambda: operator_norm_sq(op, dtype=dtype),
+                                check=lambda v: np.ndim(v) == 0)
     if not lip > 0:
         raise InputError("the operator is zero (or lipschitz <= 0): nothing to reconstruct")
 

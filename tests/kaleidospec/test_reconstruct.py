@@ -150,14 +150,17 @@ def test_reconstructor_takes_the_weight_of_its_first_frame(setup):
     assert Reconstructor.calibrated(cal, 5, solver="fista-tv", tau=0.1).tau == 0.1
 
 
-def test_reconstructor_solves_a_frame_as_reconstruct_views_does(setup, monkeypatch):
+def test_reconstructor_solves_a_frame_as_reconstruct_views_does(setup, monkeypatch, tmp_path):
     """A video frame is solved as `run` solves a still: FISTA-TV in the band metric, the
-    metric estimated once for the sequence (the same values as the still's own estimate);
-    with the scalar step instead (the metric set to "scalar") the cube moves far more."""
+    metric the still's own estimate (kept in the cache with the calibration); with the scalar
+    step instead (the metric set to "scalar") the cube moves far more."""
     import numpy as np
 
     from kaleidospec import reconstruct as rc
+    from recon.solvers.band_metric import DEFAULT_EXPONENT
+    from recon.solvers.constants import band_metric_name, lipschitz_name
 
+    monkeypatch.setenv("KALEIDOSPEC_CACHE", str(tmp_path))     # no constants from other tests
     d, cal, frame, meta, truth, wl = setup
     still, info = rc.reconstruct_views(frame, meta, cal, 5, iters=30, tol=None)
     assert info["solver_info"]["metric"] == "bands"
@@ -168,11 +171,14 @@ def test_reconstructor_solves_a_frame_as_reconstruct_views_does(setup, monkeypat
         return rec, cube
 
     rec, cube = frame_cube()
-    assert rec._band_metric.tolist() == info["solver_info"]["band_metric"]
-    assert rec._lipschitz is None                       # no power iteration for ‖H‖² besides
+    kept = rec.constants.as_dict()
+    assert kept[band_metric_name(DEFAULT_EXPONENT, np.float32)] == \
+        info["solver_info"]["band_metric"]
+    assert rec.constants.estimated == []                # the still's, not estimated again
+    assert lipschitz_name(np.float32) not in kept       # no power iteration for ‖H‖² besides
     near = np.linalg.norm(cube - still) / np.linalg.norm(still)
     monkeypatch.setitem(rc.DEFAULTS, "metric", "scalar")
     rec_scalar, scalar = frame_cube()
-    assert rec_scalar._band_metric is None and rec_scalar._lipschitz is not None
+    assert rec_scalar.constants.estimated == [lipschitz_name(np.float32)]
     far = np.linalg.norm(scalar - still) / np.linalg.norm(still)
     assert near < 1e-4 and far > 100 * near
