@@ -186,8 +186,20 @@ def no_gather(dtype) -> tuple:
             np.zeros((0, 1), np.bool_))
 
 
+@jit(refcount=False)
+def _scale_row(ob, o, w, r):
+    """``ob[o:o + w] *= r``: the row just written, while it is in cache.  A loop of its own,
+    after the row's, so that each value is rounded as the prox's, then scaled (the bits of
+    a prox followed by a pass that scales it; in one expression the fast-math licences
+    would let LLVM reassociate the two)."""
+    row = ob[o:o + w]
+    for j in range(w):
+        row[j] *= r
+
+
 @jit(parallel=True)
-def chambolle(v, p, weight, s, theta, n_iter, isotropic, out, z, masks, a, c0, c1, sub):
+def chambolle(v, p, weight, s, theta, n_iter, isotropic, out, z, masks, a, c0, c1, sub,
+              oscale):
     r"""``n_iter`` Chambolle dual iterations on every band, then
     :math:`x = u-\lambda\,\mathrm{div}\,p`, where the prox input :math:`u` is :math:`v` or,
     fused with a CASSI gradient step, :math:`u = v + s H^\top y`.
@@ -219,6 +231,9 @@ def chambolle(v, p, weight, s, theta, n_iter, isotropic, out, z, masks, a, c0, c
     masks, a, c0, c1, sub : ndarray
         The plan's masks (K, H, W), integer offsets (K, L), tap weights (K, L) and sub-pixel
         flags (K, L), as for :func:`recon.kernels.cassi.adjoint`.
+    oscale : ndarray, shape (L,) or (0,)
+        A factor per band the result is multiplied by as it is written (FISTA's band metric
+        scales the prox's result back per band), or none.
 
     Bands are independent and run in parallel.  With a gradient step, row :math:`i` of
     :math:`u` is gathered into ``out`` just before the first dual iteration reaches it and
@@ -228,6 +243,7 @@ def chambolle(v, p, weight, s, theta, n_iter, isotropic, out, z, masks, a, c0, c
     """
     n_bands, h, w = v.shape
     gather = masks.shape[0] > 0
+    scaled = oscale.shape[0] > 0
     # In place, rows are updated through one slice (see _out_row).
     inplace = v.ctypes.data == out.ctypes.data
     for l in prange(n_bands):
@@ -266,6 +282,8 @@ def chambolle(v, p, weight, s, theta, n_iter, isotropic, out, z, masks, a, c0, c
             q = r - n_iter + 1 if n_iter > 0 else r
             if 0 <= q < h:
                 _out_row(vb, p0, p1, q * w, w, weight, ob, inplace or gather)
+                if scaled:
+                    _scale_row(ob, q * w, w, oscale[l])
 
 
 @jit(refcount=False)

@@ -29,6 +29,9 @@ methods only, so that a prior overrides one only to make it faster or to keep it
 - :meth:`PriorBase.scaled_prox` -- :math:`q \odot \mathrm{prox}_{s\varphi}(q \odot v)`
   for a factor per band (FISTA's band metric on a ``band_weighted`` prior), which a prior may
   make without weighing the cube twice;
+- :meth:`PriorBase.rescaled_prox` -- :math:`r \odot \mathrm{prox}_{s\varphi}(v)` for a
+  factor per band (FISTA's band metric on a ``band_scalable`` prior), which a prior may scale
+  as it writes its result instead of in a pass of its own;
 - :meth:`PriorBase.prox_value` -- :math:`\varphi` of the last prox's result, where the prox
   has it at hand (FISTA's restart test then evaluates no :meth:`value` of its own);
 - :meth:`PriorBase.stages` -- a plug-and-play prior that starts from another prior's solve
@@ -56,7 +59,8 @@ from recon import kernels
 from recon.errors import InputError
 
 __all__ = ["Prior", "PriorBase", "check_prior", "gradient_prox", "combine_value", "refine",
-           "describe", "state_change", "prox_value", "previous_value", "scaled_prox", "stages",
+           "describe", "state_change", "prox_value", "previous_value", "scaled_prox",
+           "rescaled_prox", "stages",
            "linear_combination", "solver_algorithm"]
 
 
@@ -167,6 +171,13 @@ class PriorBase:
         weighs its result."""
         return _scaled_prox_default(self, v, step, weights, out)
 
+    def rescaled_prox(self, v: np.ndarray, step: float, factors, out: np.ndarray | None = None
+                      ) -> np.ndarray:
+        r""":math:`r \odot \mathrm{prox}_{s\varphi}(v)` for a factor :math:`r_l` per band
+        (``factors``, shape ``(L,)``), into ``out`` if given.  The default calls :meth:`prox`
+        and scales its result in place."""
+        return _rescaled_prox_default(self, v, step, factors, out)
+
     def prox_value(self) -> float | None:
         """:math:`\varphi` of the result of the last :meth:`prox` call, where the prox has it at
         hand for less than a :meth:`value` call would cost (the subspace prior: TV of its
@@ -233,6 +244,19 @@ def scaled_prox(prior, v, step, weights, out=None):
     fn = getattr(prior, "scaled_prox", None)
     return _scaled_prox_default(prior, v, step, weights, out) if fn is None else \
         fn(v, step, weights, out)
+
+
+def rescaled_prox(prior, v, step, factors, out=None):
+    """:meth:`PriorBase.rescaled_prox` of ``prior``; its default for a bare prior."""
+    fn = getattr(prior, "rescaled_prox", None)
+    return _rescaled_prox_default(prior, v, step, factors, out) if fn is None else \
+        fn(v, step, factors, out)
+
+
+def _rescaled_prox_default(prior, v, step, factors, out):
+    out = prior.prox(v, step, out=out)
+    out *= np.asarray(factors, dtype=out.dtype).reshape(-1, *([1] * (out.ndim - 1)))
+    return out
 
 
 def _scaled_prox_default(prior, v, step, weights, out):

@@ -105,6 +105,13 @@ class TVPrior(PriorBase):
         r""":math:`\mathrm{prox}_{s\tau\mathrm{TV}}(v)` (``iters`` dual iterations)."""
         return self._tv(v)(v, self._lam(step), self.iters, warm=self.warm, out=out)
 
+    def rescaled_prox(self, v: np.ndarray, step: float, factors,
+                      out: np.ndarray | None = None) -> np.ndarray:
+        r""":math:`r \odot \mathrm{prox}_{s\tau\mathrm{TV}}(v)`: the factors applied as the
+        prox writes its result (:class:`TVProx`'s ``out_scale``), not in a pass of their own."""
+        return self._tv(v)(v, self._lam(step), self.iters, warm=self.warm, out=out,
+                           out_scale=factors)
+
     def value(self, x: np.ndarray) -> float:
         r""":math:`\tau\,\mathrm{TV}(x)`."""
         return self.weight * tv_norm(x, self.isotropic, self.threads)

@@ -328,7 +328,7 @@ class TVProx:
         self.dual.fill(0)
 
     def __call__(self, v: np.ndarray, weight: float, n_iter: int = 10, warm: bool = True,
-                 out: np.ndarray | None = None) -> np.ndarray:
+                 out: np.ndarray | None = None, out_scale=None) -> np.ndarray:
         r"""Return :math:`\mathrm{prox}_{\lambda\mathrm{TV}}(v)` after ``n_iter`` dual iterations.
 
         Parameters
@@ -343,6 +343,9 @@ class TVProx:
             Start from the stored dual (True) or from zero (False).
         out : ndarray, shape (L, H, W), optional
             Where to write the result; may be ``v`` itself.
+        out_scale : array_like, shape (L,), optional
+            A factor :math:`r_l` per band: the result is :math:`r_l x_l`, scaled as it is
+            written (the same values as the prox followed by a pass that scales it).
 
         Returns
         -------
@@ -355,8 +358,11 @@ class TVProx:
         weight, n_iter = self._check(weight, n_iter)
         if out is None:
             out = np.empty(self.shape, dtype=self.dtype)
+        r = self._out_scale(out_scale)
         if weight == 0.0:
             np.copyto(out, v)
+            if r.size:
+                out *= r[:, None, None]
             return out
         if not warm:
             self.reset()
@@ -367,7 +373,7 @@ class TVProx:
             from recon.kernels import tv as ktv
 
             self._kernel(np.ascontiguousarray(v), weight, n_iter, out,
-                         ktv.no_gather(self.dtype))
+                         ktv.no_gather(self.dtype), r)
             return out
         if self._work is None:
             shape = self.shape
@@ -381,7 +387,19 @@ class TVProx:
                     for sl in self._chunks]
             for job in jobs:
                 job.result()
+        if r.size:
+            out *= r[:, None, None]
         return out
+
+    def _out_scale(self, out_scale) -> np.ndarray:
+        """``out_scale`` as a float array of one factor per band, or an empty one."""
+        if out_scale is None:
+            return np.zeros(0, self.dtype)
+        r = np.ascontiguousarray(out_scale, dtype=self.dtype).reshape(-1)
+        if r.shape != self.shape[:1] or not np.all(np.isfinite(r)):
+            raise InputError(f"out_scale must hold one finite factor per band "
+                             f"({self.shape[0]}), got shape {np.shape(out_scale)}")
+        return r
 
     def gradient_prox(self, op, y: np.ndarray, base: np.ndarray, weight: float,
                       n_iter: int = 10, warm: bool = True, scale: float = 1.0,
@@ -447,15 +465,18 @@ class TVProx:
             raise InputError(f"n_iter must be >= 0, got {n_iter}")
         return weight, n_iter
 
-    def _kernel(self, v, weight, n_iter, out, gather) -> None:
+    def _kernel(self, v, weight, n_iter, out, gather, oscale=None) -> None:
         """The fused Chambolle pass (:func:`recon.kernels.tv.chambolle`); ``gather`` is its
-        ``z, masks, a, c0, c1, sub`` (no views: a plain prox)."""
+        ``z, masks, a, c0, c1, sub`` (no views: a plain prox), ``oscale`` its factor per band
+        on the result (None: none)."""
         from recon.kernels import tv as ktv
 
         t = self.dtype.type
+        if oscale is None:
+            oscale = np.zeros(0, self.dtype)
         with kernels.threads(self.threads):
             ktv.chambolle(v, self.dual, t(weight), t(_STEP / weight), t(_STEP), n_iter,
-                          self.isotropic, out, *gather)
+                          self.isotropic, out, *gather, oscale)
 
     def _run(self, sl: slice, v, weight, n_iter, out) -> None:
         """All dual iterations for the bands ``sl`` (bands are independent)."""

@@ -181,7 +181,7 @@ class BandMetric:
         self.step = 1.0 / self.dmax
         self.weighted = bool(weighted)
         self._w = (d / self.dmax).astype(dtype)                     # 1/r_l, in (0, 1]
-        self._r = (self.dmax / d).astype(dtype)[:, None, None]      # r_l >= 1
+        self._r_bands = (self.dmax / d).astype(dtype)               # r_l >= 1
         self._q = np.sqrt(self.dmax / d)                                     # 1/w_l
         self._sqrt_r = self._q.astype(dtype)[:, None, None]
 
@@ -200,13 +200,12 @@ class BandMetric:
         Weighted: :math:`w^{-1}\odot\mathrm{prox}_{\sigma_0\varphi}(w\odot v)`, with
         :math:`w \odot v = \sqrt r \odot (v/r)` and :math:`w^{-1} = \sqrt r`: the prior's
         :meth:`~recon.priors.base.PriorBase.scaled_prox` with :math:`q = \sqrt r`."""
-        if self.weighted:
-            from recon.priors.base import scaled_prox
+        from recon.priors.base import rescaled_prox, scaled_prox
 
+        if self.weighted:
             return scaled_prox(prior, v_scaled, self.step, self._q, out)
-        prior.prox(v_scaled, self.step, out=out)
-        out *= self._r
-        return out
+        # r times the prox, scaled as the prior writes it where it can (TV).
+        return rescaled_prox(prior, v_scaled, self.step, self._r_bands, out)
 
     def value(self, prior, x: np.ndarray, work: np.ndarray | None = None) -> float | None:
         r"""The prior's value as the loop minimises it: :math:`\varphi(x)`, or

@@ -13,6 +13,7 @@ import pytest
 from kernel_checks import (RTOL32, assert_operator_matches_numpy, permutation_cassi, rel,
                            warped_cassi)
 from recon import kernels
+from recon.errors import InputError
 from recon.operators import dot_test
 from recon.prox import TVProx, tv_norm_per_band
 from recon.solvers import solve
@@ -81,6 +82,34 @@ def test_chambolle_prox_matches_numpy(shape, isotropic, n_iter):
 def test_chambolle_prox_cold_and_in_place(isotropic):
     (x, p), (xr, pr) = _prox_pair((3, 11, 8), np.float32, isotropic, 4, False, 2, alias=True)
     assert rel(x, xr) < 5 * RTOL32 and rel(p, pr) < 5 * RTOL32
+
+
+@pytest.mark.parametrize("shape", [(3, 7, 9), (2, 1, 6), (4, 16, 13)])
+@pytest.mark.parametrize("alias", [False, True])
+@pytest.mark.parametrize("n_iter", [0, 2])
+def test_chambolle_prox_scales_its_result_per_band(shape, alias, n_iter):
+    # out_scale scales each row as the kernel writes it: the bits of the prox followed by a
+    # pass that scales it (FISTA's band metric took that pass before); the NumPy path scales
+    # after its prox, to the kernel's tolerance.
+    rng = np.random.default_rng(4)
+    v = rng.standard_normal(shape).astype(np.float32)
+    dual = rng.uniform(-0.7, 0.7, (2,) + shape).astype(np.float32)
+    r = (1 + 4 * rng.random(shape[0])).astype(np.float32)
+    plain, scaled, ref = (TVProx(shape, np.float32, threads=2) for _ in range(3))
+    for prox in (plain, scaled, ref):
+        prox.dual[:] = dual
+    want = plain(v, 0.3, n_iter)
+    want *= r[:, None, None]
+    vin = v.copy()
+    got = scaled(vin, 0.3, n_iter, out=vin if alias else None, out_scale=r)
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(scaled.dual, plain.dual)
+    with kernels.numpy_only():
+        numpy = ref(v, 0.3, n_iter, out_scale=r)
+    assert rel(numpy, want) < RTOL32 * (1 + n_iter)
+    for bad in (r[:-1], np.full(shape[0], np.nan, np.float32)):
+        with pytest.raises(InputError, match="out_scale"):
+            scaled(v, 0.3, n_iter, out_scale=bad)
 
 
 def test_kernels_are_float32_only():

@@ -54,6 +54,29 @@ def test_prox_is_the_chambolle_prox_of_weight_times_step(isotropic, dtype):
     np.testing.assert_array_equal(prior.prox(v, 0.5), ref)
 
 
+def test_rescaled_prox_is_the_prox_times_a_factor_per_band():
+    # TV scales as its prox writes; the protocol's default (prox, then a pass) and a bare
+    # prior's give the same bits.
+    from recon.priors.base import PriorBase, rescaled_prox
+
+    rng = np.random.default_rng(6)
+    v = rng.standard_normal((4, 12, 10)).astype(np.float32)
+    r = np.array([1.0, 2.5, 1.25, 7.0], np.float32)
+    fused, default, bare = (TVPrior(0.2, v.shape) for _ in range(3))
+    for _ in range(3):                                   # warm duals stay in step too
+        a = fused.rescaled_prox(v, 0.5, r)
+        b = PriorBase.rescaled_prox(default, v, 0.5, r)
+
+        class Bare:
+            def prox(self, x, step, out=None):
+                return bare.prox(x, step, out=out)
+        c = rescaled_prox(Bare(), v, 0.5, r)
+        np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(a, c)
+    want = TVPrior(0.2, v.shape).prox(v, 0.5) * r[:, None, None]
+    np.testing.assert_array_equal(TVPrior(0.2, v.shape).rescaled_prox(v, 0.5, r), want)
+
+
 def test_cold_prior_without_warm_start_repeats_itself():
     v = _cube(2)
     prior = TVPrior(0.2, iters=4, warm=False)
