@@ -39,8 +39,8 @@ from recon.errors import InputError
 
 __all__ = ["DEFAULTS", "TAU_PER_VIEW", "TAU_PER_NOISE", "first_views", "tv_weight",
            "prior_weight", "unit_row_scale", "row_scale", "normalised", "measurement_noise",
-           "design_noise", "solver_metric", "solve_views", "calibrated_operator", "frame_measurements",
-           "reconstruct_views", "reconstruct_oracle", "Reconstructor"]
+           "design_noise", "solver_metric", "solve_views", "calibrated_operator",
+           "frame_measurements", "reconstruct_views", "reconstruct_oracle", "Reconstructor"]
 
 #: Reconstruction defaults: FISTA-TV run until the relative change of the cube
 #: :math:`\|f_k-f_{k-1}\|/\|f_{k-1}\|` falls below ``tol``, at most ``iters`` iterations: a fixed

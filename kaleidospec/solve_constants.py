@@ -6,9 +6,10 @@ the row scale :math:`s` that brings its rows to unit mean squared norm
 :math:`\|sH\|^2` (:mod:`recon.solvers.constants`).  At the ``paper`` size with five views
 they cost a few seconds, the time of tens of iterations, and they are the same for every
 frame measured with that calibration and those views.  :func:`constants_for` keeps them in
-one cache entry per calibration, view set and model (``solve-<design hash>-<key>.json`` in the
-cache folder, :mod:`recon.io.cache`: checksummed, written atomically, removed and estimated
-again when damaged), so that only the first solve estimates them.
+one cache entry per calibration, view set and model
+(``solve-<design hash>-<key>-v<version>.json`` in the cache folder, :mod:`recon.io.cache`:
+checksummed, written atomically, removed and estimated again when damaged), so that only the
+first solve estimates them.
 
 The key is a digest of the calibration's arrays (not its file name: a calibration made again
 gets new constants), the views and the model; the entry's version is a digest of the code
@@ -78,8 +79,10 @@ def _key(cal, view_ids, model: str) -> str:
 
 
 def entry_path(folder, cal, key: str) -> Path:
-    """The cache entry of the constants with key ``key`` in ``folder``."""
-    return Path(folder) / f"solve-{cal.design_hash or 'none'}-{key[:16]}.json"
+    """The cache entry of the constants with key ``key`` in ``folder``: named by the code's
+    version too, as the calibrations are, so that other code (another checkout, an upgrade)
+    keeps its own entry instead of finding this one foreign and removing it."""
+    return Path(folder) / f"solve-{cal.design_hash or 'none'}-{key[:16]}-v{code_version()}.json"
 
 
 def constants_for(cal, view_ids, model: str, cache_dir=None) -> OperatorConstants:

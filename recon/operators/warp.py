@@ -480,30 +480,72 @@ def _source_points(inv: np.ndarray, out_shape, view_field=None, centre_field=Non
 def _bilinear_matrix(xs: np.ndarray, ys: np.ndarray, ok: np.ndarray, in_shape,
                      out_shape) -> sp.csr_matrix:
     """CSR matrix (Hv*Wv, H*W), float32, of bilinear sampling at the points (xs, ys) (flat,
-    one per view pixel; none where ``ok`` is False)."""
+    one per view pixel; none where ``ok`` is False).
+
+    Made as CSR directly: a pixel's four taps, (y0, x0), (y0, x0 + 1), (y0 + 1, x0),
+    (y0 + 1, x0 + 1), are already in the order of their columns, so the entries kept, read
+    pixel by pixel, are the CSR arrays (:func:`_bilinear_matrix_coo`, the COO build and
+    SciPy's conversion it replaces, gives the same arrays: tests/recon/operators/test_warp.py).
+    """
     h, w = in_shape
-    hv, wv = out_shape
+    x0, y0, fx, fy = _bilinear_parts(xs, ys)
+    n = out_shape[0] * out_shape[1]
+    cols = np.empty((n, 4), np.int64)
+    vals = np.empty((n, 4), np.float32)
+    keep = np.empty((n, 4), np.bool_)
+    for k, (dy, wy, dx, wx) in enumerate(_taps(fx, fy)):
+        yy, xx = y0 + dy, x0 + dx
+        wgt = wy * wx
+        kk = keep[:, k]
+        np.logical_and(ok, wgt > 0, out=kk)
+        kk &= (yy >= 0) & (yy < h) & (xx >= 0) & (xx < w)
+        with np.errstate(invalid="ignore", over="ignore"):   # far points are not kept
+            cols[:, k] = np.where(kk, yy * w + xx, 0.0)
+        vals[:, k] = wgt
+    indptr = np.zeros(n + 1, np.int64)
+    np.cumsum(keep.sum(axis=1), out=indptr[1:])
+    index = np.int32 if h * w < 2 ** 31 and indptr[-1] < 2 ** 31 else np.int64
+    return sp.csr_matrix((vals[keep], cols[keep].astype(index), indptr.astype(index)),
+                         shape=(n, h * w))
+
+
+def _bilinear_parts(xs, ys):
+    """``x0, y0, fx, fy``: the integer parts and fractions of the points, positions within
+    :data:`_WEIGHT_TOL` of an integer snapped to it (exact permutations stay exact)."""
     x0 = np.floor(xs)
     y0 = np.floor(ys)
     fx = xs - x0
     fy = ys - y0
-    # Snap near-integer positions so that exact permutations stay exact.
     for f, base in ((fx, x0), (fy, y0)):
         up = f > 1.0 - _WEIGHT_TOL
         base[up] += 1.0
         f[up] = 0.0
         f[f < _WEIGHT_TOL] = 0.0
+    return x0, y0, fx, fy
+
+
+def _taps(fx, fy):
+    """``(dy, wy, dx, wx)`` of the four bilinear taps, in the order of their columns."""
+    return [(dy, wy, dx, wx) for dy, wy in ((0, 1.0 - fy), (1, fy))
+            for dx, wx in ((0, 1.0 - fx), (1, fx))]
+
+
+def _bilinear_matrix_coo(xs: np.ndarray, ys: np.ndarray, ok: np.ndarray, in_shape,
+                         out_shape) -> sp.csr_matrix:
+    """:func:`_bilinear_matrix` through a COO matrix and SciPy's conversion (the reference)."""
+    h, w = in_shape
+    hv, wv = out_shape
+    x0, y0, fx, fy = _bilinear_parts(xs, ys)
     rows, cols, vals = [], [], []
     row = np.arange(hv * wv)
-    for dy, wy in ((0, 1.0 - fy), (1, fy)):
-        for dx, wx in ((0, 1.0 - fx), (1, fx)):
-            yy = y0 + dy
-            xx = x0 + dx
-            wgt = wy * wx
-            keep = ok & (wgt > 0) & (yy >= 0) & (yy < h) & (xx >= 0) & (xx < w)
-            rows.append(row[keep])
-            cols.append((yy[keep] * w + xx[keep]).astype(np.int64))
-            vals.append(wgt[keep])
+    for dy, wy, dx, wx in _taps(fx, fy):
+        yy = y0 + dy
+        xx = x0 + dx
+        wgt = wy * wx
+        keep = ok & (wgt > 0) & (yy >= 0) & (yy < h) & (xx >= 0) & (xx < w)
+        rows.append(row[keep])
+        cols.append((yy[keep] * w + xx[keep]).astype(np.int64))
+        vals.append(wgt[keep])
     m = sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                       shape=(hv * wv, h * w)).tocsr()
     m.sum_duplicates()

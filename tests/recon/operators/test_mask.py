@@ -36,6 +36,8 @@ def test_float32_in_float32_out():
     (np.ones(4), 2),                         # not 2-D
     (np.array([[1.0, np.nan]]), 2),          # non-finite
     (np.array([[1.0, np.inf]]), 2),
+    (np.array([[-np.inf, 1.0]]), 2),
+    (np.array([[np.nan, -np.inf], [np.inf, 0.0]]), 2),
     (np.ones((2, 2)), 0),                    # no bands
     (np.zeros((0, 3)), 1),                   # empty
 ])

@@ -225,3 +225,31 @@ def test_displacement_field_bend_drops_the_affine_part():
     for k in range(2):
         affine = f.coeffs[k, 0] + f.coeffs[k, 1] * xi + f.coeffs[k, 2] * eta
         np.testing.assert_allclose(b(x, y)[k], f(x, y)[k] - affine, atol=1e-12)
+
+
+@settings(max_examples=40, deadline=None)
+@given(h=st.integers(1, 30), w=st.integers(1, 30), hv=st.integers(1, 20), wv=st.integers(1, 20),
+       seed=st.integers(0, 2 ** 31 - 1))
+def test_bilinear_matrix_is_the_coo_builds_matrix(h, w, hv, wv, seed):
+    # The CSR arrays made directly are those of the COO build and SciPy's conversion, to the
+    # bit and in the same index types: points inside, on the edges, past them, snapped to
+    # integers (within the tolerance from either side), far away, and not mapped at all.
+    from recon.operators.warp import _WEIGHT_TOL, _bilinear_matrix, _bilinear_matrix_coo
+
+    rng = np.random.default_rng(seed)
+    n = hv * wv
+    xs = rng.uniform(-2.5, w + 1.5, n)
+    ys = rng.uniform(-2.5, h + 1.5, n)
+    pick = rng.random(n)
+    xs = np.where(pick < 0.2, np.round(xs) + rng.choice([-1, 1], n) * _WEIGHT_TOL / 2, xs)
+    ys = np.where(pick > 0.8, np.round(ys), ys)
+    xs[pick > 0.95] = 1e30
+    ok = rng.random(n) > 0.1
+    xs[~ok] = -2.0
+    a = _bilinear_matrix(xs.copy(), ys.copy(), ok, (h, w), (hv, wv))
+    b = _bilinear_matrix_coo(xs.copy(), ys.copy(), ok, (h, w), (hv, wv))
+    assert a.shape == b.shape
+    for name in ("indptr", "indices", "data"):
+        got, want = getattr(a, name), getattr(b, name)
+        assert got.dtype == want.dtype
+        np.testing.assert_array_equal(got, want)
