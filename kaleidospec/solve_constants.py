@@ -3,16 +3,17 @@ r"""A calibrated solve's operator constants, cached next to the calibration they
 A solve through a calibrated model first estimates numbers that depend on the operator alone:
 the row scale :math:`s` that brings its rows to unit mean squared norm
 (:func:`kaleidospec.reconstruct.unit_row_scale`), and FISTA's band metric or
-:math:`\|sH\|^2` (:mod:`recon.solvers.constants`).  At the ``paper`` size with five views
-they cost a few seconds, the time of tens of iterations, and they are the same for every
-frame measured with that calibration and those views.  :func:`constants_for` keeps them in
+:math:`\|sH\|^2` (:mod:`recon.solvers.constants`).  They cost forward/adjoint pairs, as
+many as tens of iterations (figures in ``docs/speed_product.md``), and they are the same for
+every frame measured with that calibration and those views.  :func:`constants_for` keeps them in
 one cache entry per calibration, view set and model
 (``solve-<design hash>-<key>-v<version>.json`` in the cache folder, :mod:`recon.io.cache`:
 checksummed, written atomically, removed and estimated again when damaged), so that only the
 first solve estimates them.
 
 The key is a digest of the calibration's arrays (not its file name: a calibration made again
-gets new constants), the views and the model; the entry's version is a digest of the code
+gets new constants), the views, the model and whether the kernels or the NumPy paths made
+them; the entry's version is a digest of the code
 that makes the operator and the estimates, so a change there estimates them again.  The values
 are kept as JSON numbers, which read back to the same doubles: a solve with the cached
 constants gives the same bits as one that estimates them
@@ -57,8 +58,8 @@ def code_version() -> str:
 
 
 def calibration_digest(cal) -> str:
-    """SHA-256 of the calibration's arrays and of the metadata the operator reads (computed
-    from the arrays in memory, about 0.2 s for a ``paper`` calibration)."""
+    """SHA-256 of the calibration's arrays and of the metadata the operator reads, computed
+    from the arrays in memory (so a calibration changed in memory gets its own key)."""
     from recon.calibration.store import ARRAY_FIELDS, OPTIONAL_ARRAY_FIELDS
     from recon.io.cache import array_digest
 
@@ -91,9 +92,8 @@ def constants_for(cal, view_ids, model: str, cache_dir=None) -> OperatorConstant
     (``cache_dir``, default the simulator's, :func:`kaleidospec.instrument.cache_dir`) where
     an entry is there, written back whenever a solve adds a constant to it."""
     from kaleidospec.instrument import cache_dir as folder
-    from recon.io import cache
-
     from recon.errors import InputError
+    from recon.io import cache
 
     try:
         where = folder(cache_dir)

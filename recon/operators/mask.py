@@ -31,8 +31,7 @@ def as_mask(mask, shape: tuple[int, ...] | None = None, name: str = "mask", ndim
     if shape is not None and m.shape != tuple(shape):
         raise InputError(f"{name} has shape {m.shape}, expected {tuple(shape)}")
     # The extremes carry any NaN (np.min/np.max propagate it) and any infinity: two
-    # reductions instead of a boolean array the size of the masks (105 MB for five `paper`
-    # views' mask images).
+    # reductions instead of a boolean array the size of the masks.
     if not (np.isfinite(m.min()) and np.isfinite(m.max())):
         raise InputError(f"{name} contains non-finite values")
     return m

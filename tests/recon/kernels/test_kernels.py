@@ -89,8 +89,8 @@ def test_chambolle_prox_cold_and_in_place(isotropic):
 @pytest.mark.parametrize("n_iter", [0, 2])
 def test_chambolle_prox_scales_its_result_per_band(shape, alias, n_iter):
     # out_scale scales each row as the kernel writes it: the bits of the prox followed by a
-    # pass that scales it (FISTA's band metric took that pass before); the NumPy path scales
-    # after its prox, to the kernel's tolerance.
+    # pass that scales it (what FISTA's band metric would otherwise do on its own); the NumPy
+    # path scales after its prox, to the kernel's tolerance.
     rng = np.random.default_rng(4)
     v = rng.standard_normal(shape).astype(np.float32)
     dual = rng.uniform(-0.7, 0.7, (2,) + shape).astype(np.float32)

@@ -6,18 +6,16 @@ import numpy as np
 import pytest
 
 from recon.errors import InputError
-from recon.operators import kaleidoscope_cassi
 from recon.solvers.band_metric import DEFAULT_EXPONENT
 from recon.solvers.constants import OperatorConstants, band_metric_name, lipschitz_name
 
 
 @pytest.fixture(scope="module")
-def problem():
-    rng = np.random.default_rng(5)
-    op = kaleidoscope_cassi((rng.random((3, 20, 20)) > 0.5).astype(np.float32),
-                            np.arange(5, dtype=float), 3)
+def problem(ops):
+    """The shared three-view kaleidoscope (conftest) measuring a box of a sloped spectrum."""
+    op = ops["kaleido3"]
     x = np.zeros(op.ishape, np.float32)
-    x[:, 5:15, 3:12] = np.linspace(0.2, 1.0, op.ishape[0])[:, None, None]
+    x[:, 8:24, 5:20] = np.linspace(0.2, 1.0, op.ishape[0])[:, None, None]
     return op, op.forward(x)
 
 
