@@ -544,26 +544,16 @@ class Reconstructor:
         ``prior`` is the prior object the solve takes (None: TV, built by the solver from
         ``tau``).  A prior of two stages keeps the scalar step for both (the band metric
         would leave the second stage to estimate ‖H‖² at every frame)."""
-        from recon.solvers.constants import band_metric_name, lipschitz_name
-
         opts = {}
-        memo = self.constants
-        if self.solver == "fista-tv" and _takes_band_metric(prior):
-            from recon.solvers.band_metric import DEFAULT_EXPONENT, band_metric
-
-            d = memo.get(band_metric_name(DEFAULT_EXPONENT, np.float32),
-                         lambda: band_metric(self.op, np.float32),
-                         check=lambda v: np.shape(v) == self.op.ishape[:1])
-            opts.update(metric=DEFAULTS["metric"], band_metric=d)
-        elif self.solver == "fista-tv":
-            from recon.solvers import operator_norm_sq
-
-            opts["lipschitz"] = memo.get(lipschitz_name(np.float32),
-                                         lambda: operator_norm_sq(self.op, dtype=np.float32),
-                                         check=lambda v: np.ndim(v) == 0)
+        if self.solver == "fista-tv":
+            # FISTA reads its step (the band metric, or ||H||^2) from the memo, or estimates it
+            # there once for the sequence.
+            opts["constants"] = self.constants
+            if _takes_band_metric(prior):
+                opts["metric"] = DEFAULTS["metric"]
         if self.solver == "gap-tv":
-            opts["step"] = memo.get(GAP_STEP, lambda: _gap_step(self.op),
-                                    check=lambda v: np.ndim(v) == 0)
+            opts["step"] = self.constants.get(GAP_STEP, lambda: _gap_step(self.op),
+                                              check=lambda v: np.ndim(v) == 0)
             if self.threads is not None:
                 opts["threads"] = self.threads
         return opts

@@ -132,26 +132,24 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
     g, x0, dtype = check_problem(op, g, x0, iters, tau, tol)
     prior = resolve_prior(prior, "fista", op.ishape, dtype, tau=tau, tv_iters=tv_iters,
                           warm_dual=warm_dual, isotropic=isotropic, threads=threads)
+    from recon.solvers.constants import OperatorConstants, band_metric_name, lipschitz_name
     from recon.solvers.start import STARTS, normalised_backprojection
 
     if start not in STARTS:
         raise InputError(f"start must be one of {', '.join(STARTS)}, got {start!r}")
     bands = uses_band_metric(metric, prior, lipschitz)
     loop = IterationLoop(tol, callback, restarts=restart)
+    # Without the caller's memo, one for this solve: each constant is estimated either way.
+    memo = OperatorConstants() if constants is None else constants
     if bands:
         from recon.solvers.band_metric import DEFAULT_EXPONENT, BandMetric, band_scalable
         from recon.solvers.band_metric import band_metric as estimate_metric
 
         if band_metric is None:
             exponent = DEFAULT_EXPONENT if metric_exponent is None else metric_exponent
-            if constants is None:
-                d = estimate_metric(op, dtype, exponent)
-            else:
-                from recon.solvers.constants import band_metric_name
-
-                d = constants.get(band_metric_name(exponent, dtype),
-                                  lambda: estimate_metric(op, dtype, exponent),
-                                  check=lambda v: np.shape(v) == op.ishape[:1])
+            d = memo.get(band_metric_name(exponent, dtype),
+                         lambda: estimate_metric(op, dtype, exponent),
+                         check=lambda v: np.shape(v) == op.ishape[:1])
         elif metric_exponent is not None:
             raise InputError("band_metric is estimated with its exponent already: give "
                              "band_metric or metric_exponent, not both")
@@ -170,15 +168,9 @@ def fista_tv(op: LinearOperator, g: np.ndarray, *, iters: int = 50, prior=None,
                              "metric (metric='scalar', a lipschitz, or a prior the band metric "
                              "does not take)")
         bm = None
-        if lipschitz is not None:
-            lip = float(lipschitz)
-        elif constants is None:
-            lip = operator_norm_sq(op, dtype=dtype)
-        else:
-            from recon.solvers.constants import lipschitz_name
-
-            lip = constants.get(lipschitz_name(dtype), lambda: operator_norm_sq(op, dtype=dtype),
-                                check=lambda v: np.ndim(v) == 0)
+        lip = float(lipschitz) if lipschitz is not None else \
+            memo.get(lipschitz_name(dtype), lambda: operator_norm_sq(op, dtype=dtype),
+                     check=lambda v: np.ndim(v) == 0)
     if not lip > 0:
         raise InputError("the operator is zero (or lipschitz <= 0): nothing to reconstruct")
 
